@@ -1,0 +1,187 @@
+"""Every DOLFINx-version-specific call of hydrofrac lives here (DOLFINx 0.5.2).
+
+Porting to DOLFINx 0.9+ means changing this file: the rest of the package
+talks to meshes, function spaces, forms and PETSc objects only through these
+helpers (plus plain numpy arrays).  Notes for the port are next to each call.
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import ufl
+from mpi4py import MPI
+
+import dolfinx
+import dolfinx.fem
+import dolfinx.fem.petsc
+import dolfinx.mesh
+
+# FFCx/cffi JIT logs every compile at INFO on the root logger: keep CI logs readable.
+logging.getLogger().setLevel(logging.WARNING)
+
+DOLFINX_VERSION = dolfinx.__version__
+GHOST_MODE = dolfinx.mesh.GhostMode.shared_facet  # DG needs the neighbour cell across every facet
+
+
+# --- meshes -----------------------------------------------------------------
+def create_rectangle(comm, p0, p1, nx, ny, diagonal="right"):
+    """Structured triangle mesh of [p0, p1] with facet ghosts (0.9: same name)."""
+    diag = {"right": dolfinx.mesh.DiagonalType.right, "crossed": dolfinx.mesh.DiagonalType.crossed,
+            "left": dolfinx.mesh.DiagonalType.left}[diagonal]
+    return dolfinx.mesh.create_rectangle(comm, [np.asarray(p0, float), np.asarray(p1, float)], [nx, ny],
+                                         dolfinx.mesh.CellType.triangle, GHOST_MODE, diagonal=diag)
+
+
+def gmsh_model_to_mesh(model, comm, rank=0, gdim=2):
+    """Gmsh model (on ``rank``) -> (mesh, cell_tags, facet_tags) (0.9: ``gmshio.model_to_mesh``
+    returns the same triple; the partitioner argument changed)."""
+    from dolfinx.io import gmshio
+    return gmshio.model_to_mesh(model, comm, rank, gdim=gdim)
+
+
+def meshtags(mesh, dim, entities, values):
+    """Sorted MeshTags (0.9: ``dolfinx.mesh.meshtags`` unchanged)."""
+    entities = np.asarray(entities, dtype=np.int32)
+    values = np.asarray(values, dtype=np.int32)
+    order = np.argsort(entities)
+    return dolfinx.mesh.meshtags(mesh, dim, entities[order], values[order])
+
+
+def locate_boundary_facets(mesh, marker):
+    """Exterior facets whose midpoint satisfies ``marker(x) -> bool array``."""
+    tdim = mesh.topology.dim
+    return dolfinx.mesh.locate_entities_boundary(mesh, tdim - 1, marker)
+
+
+def num_cells_local(mesh):
+    return mesh.topology.index_map(mesh.topology.dim).size_local
+
+
+def num_cells_global(mesh):
+    return mesh.topology.index_map(mesh.topology.dim).size_global
+
+
+def num_cells_with_ghosts(mesh):
+    im = mesh.topology.index_map(mesh.topology.dim)
+    return im.size_local + im.num_ghosts
+
+
+def cell_vertex_coords(mesh):
+    """(num_cells incl. ghosts, 3, 2) coordinates of each triangle's geometry nodes,
+    in the cell's reference order (0.9: ``mesh.geometry.dofmap`` is a 2D array)."""
+    xdofs = mesh.geometry.dofmap.array.reshape(-1, 3)
+    return mesh.geometry.x[xdofs, :2]
+
+
+def connectivity(mesh, d0, d1):
+    """(offsets, array) of the topology connectivity d0 -> d1 (0.9: ``.offsets``/``.array``)."""
+    mesh.topology.create_connectivity(d0, d1)
+    c = mesh.topology.connectivity(d0, d1)
+    return c.offsets, c.array
+
+
+def exterior_facet_indices(mesh):
+    tdim = mesh.topology.dim
+    mesh.topology.create_connectivity(tdim - 1, tdim)
+    return dolfinx.mesh.exterior_facet_indices(mesh.topology)
+
+
+def num_facets_with_ghosts(mesh):
+    tdim = mesh.topology.dim
+    mesh.topology.create_entities(tdim - 1)
+    im = mesh.topology.index_map(tdim - 1)
+    return im.size_local + im.num_ghosts
+
+
+def facet_owned_mask(mesh):
+    tdim = mesh.topology.dim
+    mesh.topology.create_entities(tdim - 1)
+    im = mesh.topology.index_map(tdim - 1)
+    mask = np.zeros(im.size_local + im.num_ghosts, dtype=bool)
+    mask[: im.size_local] = True
+    return mask
+
+
+# --- spaces and functions -------------------------------------------------------
+def dg_space(mesh, degree, dim=None):
+    """Discontinuous Lagrange space; ``dim`` components in one blocked dofmap
+    (0.9: ``functionspace(mesh, ("DG", degree, (dim,)))``)."""
+    if dim is None:
+        el = ufl.FiniteElement("DG", mesh.ufl_cell(), degree)
+    else:
+        el = ufl.VectorElement("DG", mesh.ufl_cell(), degree, dim=dim)
+    return dolfinx.fem.FunctionSpace(mesh, el)
+
+
+def cell_dofs(V):
+    """(num_cells incl. ghosts, ndofs_per_cell) block indices of V's dofmap."""
+    return V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)
+
+
+def dof_counts(V):
+    """(owned blocks, ghost blocks, block size, global blocks)."""
+    im = V.dofmap.index_map
+    return im.size_local, im.num_ghosts, V.dofmap.index_map_bs, im.size_global
+
+
+def dof_coordinates(V):
+    return V.tabulate_dof_coordinates()
+
+
+def function(V, name=None):
+    return dolfinx.fem.Function(V, name=name)
+
+
+def function_array(u):
+    """Local array (owned + ghosts) of a Function (0.9: ``u.x.array``)."""
+    return u.x.array
+
+
+def scatter_forward(u):
+    u.x.scatter_forward()
+
+
+def constant(mesh, value):
+    return dolfinx.fem.Constant(mesh, np.asarray(value, dtype=dolfinx.default_scalar_type
+                                                 if hasattr(dolfinx, "default_scalar_type") else np.float64))
+
+
+# --- forms and assembly -----------------------------------------------------------
+def form(expr):
+    return dolfinx.fem.form(expr)
+
+
+def assemble_matrix(a):
+    A = dolfinx.fem.petsc.assemble_matrix(a)
+    A.assemble()
+    return A
+
+
+def assemble_vector(L):
+    """Assembled, ghost-accumulated PETSc vector (owned part valid)."""
+    from petsc4py import PETSc
+    b = dolfinx.fem.petsc.assemble_vector(L)
+    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    return b
+
+
+def assemble_scalar(M, comm):
+    return comm.allreduce(dolfinx.fem.assemble_scalar(M), op=MPI.SUM)
+
+
+def create_vector(V):
+    """Ghosted PETSc vector with V's layout (0.9: ``dolfinx.fem.petsc.create_vector``)."""
+    return dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
+
+
+def measure(kind, mesh, subdomain_data=None, **kw):
+    return ufl.Measure(kind, domain=mesh, subdomain_data=subdomain_data, **kw)
+
+
+def function_array_of_vec(vec):
+    """Copy of the local (owned + ghost) values of a ghosted PETSc vector, ghosts updated."""
+    from petsc4py import PETSc
+    vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+    with vec.localForm() as loc:
+        return loc.array_r.copy()

@@ -1,0 +1,628 @@
+"""Explicit Runge-Kutta DG solver for velocity-stress elastodynamics.
+
+The semi-discrete system is ``M dU/dt = K U + b(t) + r_interface(U, z, t)``.
+Everything linear is assembled once per mesh from the UFL forms in
+:mod:`hydrofrac.forms.elastodynamics`:
+
+* ``A = M^{-1} K`` (bulk operator; the mass matrix is block-diagonal and is
+  inverted cell by cell in closed form),
+* ``c_k = M^{-1} b_k`` for each load that is constant or scaled by a history g_k(t),
+* ``M^{-1} B_j`` for boundaries with a prescribed outer state (e.g. exact solutions),
+
+so a stage costs one sparse mat-vec plus a few vector updates.  Crack
+interfaces (:mod:`hydrofrac.interface`) add their nonlinear facet terms through
+the ``extensions`` hook and integrate their state ``z`` with the same stages.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Dict, Optional, Sequence, Union
+
+import numpy as np
+import ufl
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from . import compat
+from .boundary import RADIATING, Absorbing, BoundaryCondition, OuterState, Traction, Velocity
+from .element import CellGeometry, reference_element
+from .forms import elastodynamics as ef
+from .material import Material
+
+#: Documented CFL constant: dt = CFL * h_min / ((2p + 1) c_d), h_min = smallest
+#: inscribed-circle diameter.  Calibrated in tests/test_bulk.py::test_cfl (stable at
+#: CFL, detected unstable at 1.5 * CFL) for the classical RK4 scheme.
+CFL_DEFAULT = {"rk4": 0.6, "ssprk3": 0.45}
+
+#: Butcher tableaux (a, b, c) of the explicit schemes.
+TABLEAUX = {
+    "rk4": ([[], [0.5], [0.0, 0.5], [0.0, 0.0, 1.0]], [1 / 6, 1 / 3, 1 / 3, 1 / 6], [0.0, 0.5, 0.5, 1.0]),
+    "ssprk3": ([[], [1.0], [0.25, 0.25]], [1 / 6, 1 / 6, 2 / 3], [0.0, 1.0, 0.5]),
+}
+
+BULK_FACET = 1
+MAX_DEGREE = 4
+
+
+class BlowUpError(RuntimeError):
+    """The run became unstable (NaN or energy growth); the last good state is kept."""
+
+
+class Timers:
+    """Wall-time split of a run, in seconds per named part."""
+
+    def __init__(self):
+        self.t: Dict[str, float] = {}
+
+    def add(self, name, dt):
+        self.t[name] = self.t.get(name, 0.0) + dt
+
+
+@dataclass
+class EnergyBudget:
+    """Cumulative energy terms [J/m] relative to the initial stress state."""
+
+    kinetic: float = 0.0
+    strain: float = 0.0
+    initial: float = 0.0
+    work_in: float = 0.0
+    radiated: float = 0.0
+    dissipated_flux: float = 0.0
+    dissipated_friction: float = 0.0
+    dissipated_damage: float = 0.0
+    inflow_total: float = 0.0  # cumulative positive power in (bound used by the blow-up check)
+
+    @property
+    def total(self):
+        return self.kinetic + self.strain
+
+    @property
+    def balance_error(self):
+        """total - (initial + work in - radiated - dissipated), should be ~ time-integration error."""
+        expected = (self.initial + self.work_in - self.radiated - self.dissipated_flux
+                    - self.dissipated_friction - self.dissipated_damage)
+        return self.total - expected
+
+    def as_dict(self):
+        d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "inflow_total"}
+        d["total"] = self.total
+        d["balance_error"] = self.balance_error
+        ref = max(abs(self.initial) + abs(self.work_in) + abs(self.radiated), 1e-300)
+        d["balance_error_relative"] = self.balance_error / ref
+        return d
+
+
+def _to_baij(A, bs):
+    """Re-pack an AIJ matrix with bs x bs block structure as BAIJ (one column index per
+    block: ~3x faster mat-vec than AIJ here; PETSc's MatConvert is far slower than this)."""
+    indptr, cols, vals = A.getValuesCSR()
+    nrows = indptr.size - 1
+    rows = np.repeat(np.arange(nrows), np.diff(indptr))
+    r0 = A.getOwnershipRange()[0]
+    brow, bcol = rows // bs, cols // bs
+    ncb = A.getSize()[1] // bs + 1
+    key = brow.astype(np.int64) * ncb + bcol
+    ukey, inv = np.unique(key, return_inverse=True)
+    bvals = np.zeros((ukey.size, bs, bs))
+    bvals[inv, rows % bs, cols % bs] = vals
+    ub_row = ukey // ncb
+    ub_col = (ukey % ncb).astype(PETSc.IntType)
+    bindptr = np.searchsorted(ub_row, np.arange(nrows // bs + 1)).astype(PETSc.IntType)
+    B = PETSc.Mat().createBAIJ(size=A.getSizes(), bsize=bs, csr=(bindptr, ub_col, bvals.reshape(-1)),
+                               comm=A.getComm())
+    B.assemble()
+    A.destroy()
+    del r0
+    return B
+
+
+class Solver:
+    """DG P_p velocity-stress solver on an affine triangle mesh.
+
+    Parameters
+    ----------
+    mesh : DOLFINx mesh (triangles, ghost mode shared_facet)
+    degree : polynomial degree p, 1..4
+    materials : a :class:`Material`, or ``{cell_tag: Material}`` with ``cell_tags``
+    bcs : boundary conditions (:mod:`hydrofrac.boundary`); untagged exterior
+        facets are traction-free
+    sigma0 : initial (and reference) stress, symmetric 2x2 [Pa]
+    cfl : CFL constant (default :data:`CFL_DEFAULT`)
+    dt : fixed time step; must not exceed the stability limit
+    scheme : "rk4" (default) or "ssprk3"
+    crack_facets : local facet indices excluded from the bulk upwind flux (crack
+        interfaces carry their own flux, :mod:`hydrofrac.interface`)
+    """
+
+    def __init__(self, mesh, degree: int, materials: Union[Material, Dict[int, Material]],
+                 cell_tags=None, facet_tags=None, bcs: Sequence[BoundaryCondition] = (),
+                 sigma0=((0.0, 0.0), (0.0, 0.0)), cfl: Optional[float] = None, dt: Optional[float] = None,
+                 scheme: str = "rk4", crack_facets: Optional[np.ndarray] = None):
+        t_setup = time.perf_counter()
+        self.mesh = mesh
+        self.comm = mesh.comm
+        if not isinstance(degree, (int, np.integer)) or not 1 <= degree <= MAX_DEGREE:
+            raise ValueError(f"degree p must be an integer in 1..{MAX_DEGREE}; got {degree!r}")
+        if scheme not in TABLEAUX:
+            raise ValueError(f"scheme must be one of {sorted(TABLEAUX)}; got {scheme!r}")
+        self.degree = int(degree)
+        self.scheme = scheme
+        self.sigma0 = np.asarray(sigma0, dtype=float)
+        if self.sigma0.shape != (2, 2) or not np.allclose(self.sigma0, self.sigma0.T):
+            raise ValueError(f"sigma0 must be a symmetric 2x2 stress; got {sigma0!r}")
+        self.facet_tags = facet_tags
+        self.bcs = list(bcs)
+        self._check_boundary_tags()
+        self.timers = Timers()
+
+        self.geometry = CellGeometry(mesh)
+        self.V = compat.dg_space(mesh, self.degree, ef.NCOMP)
+        self.ref = reference_element(self.V, self.geometry)
+        self._setup_materials(materials, cell_tags)
+
+        # CFL
+        h_over_c = self.geometry.inradius * 2.0 / self.cd_cell
+        nloc = compat.num_cells_local(mesh)
+        local_min = h_over_c[:nloc].min() if nloc else np.inf
+        self.h_over_c_min = self.comm.allreduce(local_min, op=MPI.MIN)
+        self.cfl = CFL_DEFAULT[scheme] if cfl is None else float(cfl)
+        if not self.cfl > 0:
+            raise ValueError(f"cfl must be > 0; got {cfl}")
+        self.dt_stable = CFL_DEFAULT[scheme] * self.h_over_c_min / (2 * self.degree + 1)
+        if dt is None:
+            self.dt = self.cfl * self.h_over_c_min / (2 * self.degree + 1)
+        else:
+            if not dt > 0:
+                raise ValueError(f"dt must be > 0; got {dt}")
+            if dt > self.dt_stable * (1 + 1e-12):
+                raise ValueError(
+                    f"dt = {dt:.4g} s is above the stability limit {self.dt_stable:.4g} s of this mesh "
+                    f"(CFL {CFL_DEFAULT[scheme]} * h_min/((2p+1) c_d) with h_min/c_d = {self.h_over_c_min:.4g} s); "
+                    f"use dt <= {self.dt_stable:.4g} or leave dt unset")
+            self.dt = float(dt)
+
+        self.crack_facets = np.zeros(0, dtype=np.int32) if crack_facets is None else np.asarray(crack_facets, np.int32)
+        self._build_operators()
+        self.extensions = []
+        self.t = 0.0
+        self.step_count = 0
+        self.energy = EnergyBudget()
+        self.x = compat.create_vector(self.V)
+        self.set_initial_state()
+        self.timers.add("setup", time.perf_counter() - t_setup)
+
+    # ------------------------------------------------------------------ set-up
+    def _check_boundary_tags(self):
+        tags = [bc.tag for bc in self.bcs]
+        if len(set(tags)) != len(tags):
+            raise ValueError(f"each boundary tag may carry one boundary condition; got tags {tags}")
+        if not tags:
+            return
+        local = set() if self.facet_tags is None else set(np.unique(self.facet_tags.values).tolist())
+        present = set().union(*self.comm.allgather(local))
+        missing = sorted(set(tags) - present)
+        if missing:
+            raise ValueError(f"boundary tag(s) {missing} are not in the mesh's facet tags {sorted(present)}; "
+                             "fix the tag in the boundary condition or the mesh generator")
+
+    def _setup_materials(self, materials, cell_tags):
+        ncells = compat.num_cells_with_ghosts(self.mesh)
+        if isinstance(materials, Material):
+            mats = {None: materials}
+            cell_mat = np.zeros(ncells, dtype=np.int32)
+            order = [materials]
+        else:
+            if cell_tags is None:
+                raise ValueError("materials given per cell tag need cell_tags")
+            order = list(materials.values())
+            tag_index = {tag: i for i, tag in enumerate(materials)}
+            cell_mat = np.full(ncells, -1, dtype=np.int32)
+            for tag, i in tag_index.items():
+                cell_mat[cell_tags.indices[cell_tags.values == tag]] = i
+            present = set().union(*self.comm.allgather(set(np.unique(cell_tags.values).tolist())))
+            missing = sorted(set(materials) - present)
+            if missing:
+                raise ValueError(f"material cell tag(s) {missing} are not in the mesh's cell tags {sorted(present)}")
+            nloc = compat.num_cells_local(self.mesh)
+            if np.any(cell_mat[:nloc] < 0):
+                raise ValueError("some cells have a tag without a material; give a Material for every cell tag")
+            mats = materials
+        self.materials = order
+        self.cell_material = cell_mat
+        Q0 = compat.dg_space(self.mesh, 0)
+        self.rho, self.lam, self.mu = (compat.function(Q0, n) for n in ("rho", "lambda", "mu"))
+        q0dofs = compat.cell_dofs(Q0)[:, 0]
+        for f, key in ((self.rho, "rho"), (self.lam, "lam"), (self.mu, "mu")):
+            vals = np.array([getattr(m, key) for m in order])[np.maximum(cell_mat, 0)]
+            compat.function_array(f)[q0dofs] = vals
+            compat.scatter_forward(f)
+        self.cd_cell = np.array([m.cd for m in order])[np.maximum(cell_mat, 0)]
+        self.rho_cell = np.array([m.rho for m in order])[np.maximum(cell_mat, 0)]
+        self.lam_cell = np.array([m.lam for m in order])[np.maximum(cell_mat, 0)]
+        self.mu_cell = np.array([m.mu for m in order])[np.maximum(cell_mat, 0)]
+        del mats
+
+    def _interior_facet_tags(self):
+        tdim = self.mesh.topology.dim
+        nf = compat.num_facets_with_ghosts(self.mesh)
+        interior = np.ones(nf, dtype=bool)
+        interior[compat.exterior_facet_indices(self.mesh)] = False
+        interior[self.crack_facets] = False
+        idx = np.flatnonzero(interior)
+        return compat.meshtags(self.mesh, tdim - 1, idx, np.full(idx.size, BULK_FACET))
+
+    def _bc_data(self, bc, n, unit=False, uext=None):
+        """Per-component UFL data of a boundary condition.
+
+        unit=False: the constant part; unit=True: the part multiplied by the history;
+        uext: outer-state Function/trial for OuterState.
+        """
+        t = ef.tangent(n)
+        zero = ufl.as_ufl(0.0)
+        if isinstance(bc, Traction):
+            if unit:
+                S = -n  # times p(t)
+            else:
+                S = ufl.as_matrix(bc.stress) * n
+            return (ufl.dot(S, n), ufl.dot(S, t))
+        if isinstance(bc, Velocity):
+            V = ufl.as_vector(bc.value)
+            return (ufl.dot(V, n), ufl.dot(V, t))
+        if isinstance(bc, Absorbing):
+            S = ufl.as_matrix(bc.stress) * n
+            return ((zero, ufl.dot(S, n)), (zero, ufl.dot(S, t)))
+        if isinstance(bc, OuterState):
+            if uext is None:
+                return ((zero, zero), (zero, zero))
+            ve, se = ef.fields(uext)
+            S = se * n
+            return ((ufl.dot(ve, n), ufl.dot(S, n)), (ufl.dot(ve, t), ufl.dot(S, t)))
+        return (zero, zero)  # Symmetry, Slider: homogeneous
+
+    def _build_operators(self):
+        mesh, V = self.mesh, self.V
+        U, W = ufl.TrialFunction(V), ufl.TestFunction(V)
+        Z5 = ufl.as_vector([0.0] * ef.NCOMP)
+        dx = compat.measure("dx", mesh)
+        dS = compat.measure("dS", mesh, self._interior_facet_tags())
+        btags, free_tag = self._boundary_tags()
+        ds = compat.measure("ds", mesh, btags)
+        n = ufl.FacetNormal(mesh)
+        rho, lam, mu = self.rho, self.lam, self.mu
+
+        a = ef.volume(U, W, dx) + ef.interior_flux(U, W, rho, lam, mu, dS(BULK_FACET))
+        homog = {"traction": 0.0, "velocity": 0.0, "state": (0.0, 0.0)}
+        for bc in self.bcs:
+            hd = tuple(homog[k] for k in bc.kinds)
+            a += ef.boundary_flux(U, W, rho, lam, mu, n, bc.kinds, hd, ds(bc.tag))
+        # traction-free on untagged exterior facets
+        if free_tag is not None:
+            a += ef.boundary_flux(U, W, rho, lam, mu, n, ("traction", "traction"), (0.0, 0.0), ds(free_tag))
+        K = compat.assemble_matrix(compat.form(a))
+
+        self.Minv, self.Minv_cell = self._inverse_mass()
+        self.M = self._mass_matrix()
+        self.A = _to_baij(self.Minv.matMult(K), ef.NCOMP)
+        K.destroy()
+
+        # loads: constant part, history-scaled parts, outer states
+        self.c0 = None
+        self.c_hist = []  # (history, vector)
+        self.outer = []   # (bc, Function uext, Minv B)
+        Lconst = None
+        for bc in self.bcs:
+            if isinstance(bc, (Traction, Velocity, Absorbing)):
+                data = self._bc_data(bc, n)
+                if isinstance(bc, Traction):
+                    L = ef.boundary_flux(Z5, W, rho, lam, mu, n, bc.kinds, data, ds(bc.tag))
+                    Lconst = L if Lconst is None else Lconst + L
+                    Lp = ef.boundary_flux(Z5, W, rho, lam, mu, n, bc.kinds, self._bc_data(bc, n, unit=True), ds(bc.tag))
+                    self.c_hist.append((bc.pressure, self._minv_vector(Lp)))
+                elif isinstance(bc, Velocity) and bc.history is not None:
+                    Lv = ef.boundary_flux(Z5, W, rho, lam, mu, n, bc.kinds, data, ds(bc.tag))
+                    self.c_hist.append((bc.history, self._minv_vector(Lv)))
+                else:
+                    L = ef.boundary_flux(Z5, W, rho, lam, mu, n, bc.kinds, data, ds(bc.tag))
+                    Lconst = L if Lconst is None else Lconst + L
+            elif isinstance(bc, OuterState):
+                uext = compat.function(V, f"outer_{bc.tag}")
+                Uext = ufl.TrialFunction(V)
+                Bf = ef.boundary_flux(Z5, W, rho, lam, mu, n, bc.kinds, self._bc_data(bc, n, uext=Uext), ds(bc.tag))
+                B = compat.assemble_matrix(compat.form(Bf))
+                MB = self.Minv.matMult(B)
+                B.destroy()
+                self.outer.append((bc, uext, MB))
+        if Lconst is not None:
+            self.c0 = self._minv_vector(Lconst)
+
+        # energy diagnostics: upwind dissipation (quadratic form) and boundary power
+        Qd = ef.interior_dissipation(U, W, rho, lam, mu, dS(BULK_FACET))
+        self.Qd = compat.assemble_matrix(compat.form(Qd))
+        self.u = compat.function(V, "U")
+        self._power_forms = []
+        s0 = ufl.as_matrix(self.sigma0.tolist())
+        self._hist_const = {}
+        for bc in self.bcs:
+            if isinstance(bc, Traction):
+                g = compat.constant(mesh, 0.0)
+                self._hist_const[bc.tag] = (bc.pressure, g)
+                data = tuple(d + g * du for d, du in zip(self._bc_data(bc, n), self._bc_data(bc, n, unit=True)))
+            elif isinstance(bc, Velocity) and bc.history is not None:
+                g = compat.constant(mesh, 0.0)
+                self._hist_const[bc.tag] = (bc.history, g)
+                data = tuple(g * d for d in self._bc_data(bc, n))
+            elif isinstance(bc, OuterState):
+                data = self._bc_data(bc, n, uext=self.outer[[o[0].tag for o in self.outer].index(bc.tag)][1])
+            else:
+                data = self._bc_data(bc, n)
+            P = ef.boundary_power(self.u, rho, lam, mu, n, bc.kinds, data, s0, ds(bc.tag))
+            self._power_forms.append((isinstance(bc, RADIATING), compat.form(P)))
+        self._work = [self.x_like() for _ in range(len(TABLEAUX[self.scheme][1]) + 2)]
+
+    def _boundary_tags(self):
+        """Facet tags for ds: the user's tags plus a fresh tag on exterior facets that
+        carry no boundary condition (traction-free). Returns (meshtags, free tag or None)."""
+        tdim = self.mesh.topology.dim
+        ext = compat.exterior_facet_indices(self.mesh)
+        idx = np.zeros(0, dtype=np.int32)
+        val = np.zeros(0, dtype=np.int32)
+        if self.facet_tags is not None:
+            idx, val = self.facet_tags.indices, self.facet_tags.values
+        bc_tags = [bc.tag for bc in self.bcs]
+        free = np.setdiff1d(ext, idx[np.isin(val, bc_tags)])
+        if self.comm.allreduce(free.size, op=MPI.SUM) == 0:
+            return self.facet_tags, None
+        free_tag = int(self.comm.allreduce(int(val.max()) if val.size else 0, op=MPI.MAX)) + 1
+        keep = ~np.isin(idx, free)
+        mt = compat.meshtags(self.mesh, tdim - 1, np.r_[idx[keep], free], np.r_[val[keep], np.full(free.size, free_tag)])
+        return mt, free_tag
+
+    def _inverse_mass(self):
+        """Block-diagonal M^{-1} in closed form: per cell (M_ref^{-1} kron B_c^{-1}) / |det J|.
+
+        B_c is the 5x5 material block: rho for v, the plane-strain compliance for
+        (s_xx, s_yy, s_xy) with the factor 2 of the shear term in C^{-1} sigma : tau.
+        """
+        nloc = compat.num_cells_local(self.mesh)
+        Mref_inv = np.linalg.inv(self.ref.mass())
+        kappa = self.lam_cell / (2 * (self.lam_cell + self.mu_cell))
+        B = np.zeros((self.lam_cell.size, 5, 5))
+        B[:, 0, 0] = B[:, 1, 1] = self.rho_cell
+        c = 1.0 / (2 * self.mu_cell)
+        B[:, 2, 2] = B[:, 3, 3] = c * (1 - kappa)
+        B[:, 2, 3] = B[:, 3, 2] = -c * kappa
+        B[:, 4, 4] = 2 * c
+        Binv = np.linalg.inv(B)
+        blocks = np.einsum("ij,cab->ciajb", Mref_inv, Binv) / np.abs(self.geometry.detJ)[:, None, None, None, None]
+        nd = Mref_inv.shape[0] * 5
+        blocks = blocks.reshape(-1, nd, nd)
+        self._mass_blocks = np.linalg.inv(blocks[:nloc])
+        return self._block_diag_matrix(blocks[:nloc]), blocks
+
+    def _mass_matrix(self):
+        return self._block_diag_matrix(self._mass_blocks)
+
+    def _block_diag_matrix(self, blocks):
+        """PETSc AIJ matrix with the per-owned-cell dense blocks on the diagonal."""
+        nloc = blocks.shape[0]
+        nd = blocks.shape[1]
+        dofs = compat.cell_dofs(self.V)[:nloc]
+        own, _, bs, _ = compat.dof_counts(self.V)
+        rstart = self.V.dofmap.index_map.local_range[0] * bs
+        rows = (dofs[:, :, None] * bs + np.arange(bs)).reshape(nloc, nd)  # local dof index per cell
+        n = own * bs
+        order = np.argsort(rows, axis=None)
+        flat_rows = rows.reshape(-1)[order]
+        # each row's nonzeros are the block row of its cell
+        cell_of = np.repeat(np.arange(nloc), nd)[order]
+        pos_of = np.tile(np.arange(nd), nloc)[order]
+        vals = blocks[cell_of, pos_of, :]
+        cols = rows[cell_of] + rstart
+        colorder = np.argsort(cols, axis=1)
+        vals = np.take_along_axis(vals, colorder, axis=1)
+        cols = np.take_along_axis(cols, colorder, axis=1)
+        assert np.array_equal(flat_rows, np.arange(n))
+        indptr = np.arange(0, n * nd + 1, nd, dtype=PETSc.IntType)
+        Mat = PETSc.Mat().createAIJ(size=((n, PETSc.DECIDE), (n, PETSc.DECIDE)), bsize=ef.NCOMP,
+                                   csr=(indptr, cols.reshape(-1).astype(PETSc.IntType), vals.reshape(-1)),
+                                   comm=self.comm)
+        Mat.assemble()
+        return Mat
+
+    def _minv_vector(self, L):
+        b = compat.assemble_vector(compat.form(L))
+        out = self.x_like()
+        self.Minv.mult(b, out)
+        b.destroy()
+        return out
+
+    def x_like(self):
+        return compat.create_vector(self.V)
+
+    # ------------------------------------------------------------------ state
+    @property
+    def num_dofs(self):
+        return compat.dof_counts(self.V)[3] * ef.NCOMP
+
+    @property
+    def num_cells(self):
+        return compat.num_cells_global(self.mesh)
+
+    @property
+    def num_stages(self):
+        return len(TABLEAUX[self.scheme][1])
+
+    def state0_array(self):
+        """Nodal array (ndofs_local_with_ghosts, 5) of the initial uniform state (v=0, sigma0)."""
+        s = self.sigma0
+        n = compat.function_array(self.u).size // ef.NCOMP
+        return np.tile([0.0, 0.0, s[0, 0], s[1, 1], s[0, 1]], (n, 1))
+
+    def set_initial_state(self, func=None):
+        """Set U from ``func(x (3,m)) -> (5,m)`` (nodal interpolation), default the
+        uniform initial stress sigma0 at rest."""
+        arr = self.state0_array()
+        if func is not None:
+            X = compat.dof_coordinates(self.V).T
+            arr = np.asarray(func(X), dtype=float).T.copy()
+        with self.x.localForm() as xl:
+            xl.array[:] = arr.reshape(-1)
+        self.x0 = self.x_like()
+        with self.x0.localForm() as xl:
+            xl.array[:] = self.state0_array().reshape(-1)
+        kin, strain = self.energies()
+        self.energy = EnergyBudget(kinetic=kin, strain=strain, initial=kin + strain)
+        self._last_rates = None
+
+    def local_array(self, vec=None):
+        """(owned nodes, 5) view of a state vector."""
+        vec = self.x if vec is None else vec
+        own = compat.dof_counts(self.V)[0]
+        return vec.array_r.reshape(own, ef.NCOMP)
+
+    # ------------------------------------------------------------------ operator
+    def rhs(self, y, t, out):
+        """out = M^{-1}(K y + b(t)) + interface terms; returns the aux-state rates."""
+        t0 = time.perf_counter()
+        self.A.mult(y, out)
+        if self.c0 is not None:
+            out.axpy(1.0, self.c0)
+        for hist, c in self.c_hist:
+            out.axpy(hist(t), c)
+        for bc, uext, MB in self.outer:
+            X = compat.dof_coordinates(self.V).T if not hasattr(self, "_Xdof") else self._Xdof
+            self._Xdof = X
+            arr = compat.function_array(uext)
+            arr[:] = np.asarray(bc.state(X, t)).T.reshape(-1)
+            MB.multAdd(uext.vector, out, out)
+        self.timers.add("bulk operator", time.perf_counter() - t0)
+        rates = []
+        for ext in self.extensions:
+            rates.append(ext.rhs(y, t, out))
+        return rates
+
+    # ------------------------------------------------------------------ stepping
+    def step(self):
+        """Advance one time step with the explicit RK scheme (fields and extension states)."""
+        a, b, c = TABLEAUX[self.scheme]
+        dt, t, x = self.dt, self.t, self.x
+        ks = self._work[: len(b)]
+        y = self._work[len(b)]
+        zs = [ext.state for ext in self.extensions]
+        zk = [[] for _ in self.extensions]
+        for i in range(len(b)):
+            t0 = time.perf_counter()
+            x.copy(y)
+            coeffs = [dt * aij for aij in a[i]]
+            if coeffs:
+                y.maxpy(coeffs, ks[: len(coeffs)])
+            for e, ext in enumerate(self.extensions):
+                zi = zs[e].copy()
+                for j, aij in enumerate(a[i]):
+                    if aij:
+                        zi += dt * aij * zk[e][j]
+                ext.stage_state = ext.constrain(zi)
+            if self.extensions:
+                y.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            self.timers.add("rk update", time.perf_counter() - t0)
+            rates = self.rhs(y, t + c[i] * dt, ks[i])
+            for e in range(len(self.extensions)):
+                zk[e].append(rates[e])
+        t0 = time.perf_counter()
+        x.maxpy([dt * bi for bi in b], ks)
+        for e, ext in enumerate(self.extensions):
+            z = zs[e] + dt * sum(bi * k for bi, k in zip(b, zk[e]))
+            ext.state = ext.constrain(z)
+            ext.end_step(x, self.t + dt, dt)
+        self.t += dt
+        self.step_count += 1
+        self.timers.add("rk update", time.perf_counter() - t0)
+
+    # ------------------------------------------------------------------ energy
+    def energies(self):
+        """(kinetic, strain) energy relative to the initial stress state [J/m]."""
+        d = self._work[-1] if hasattr(self, "_work") else self.x_like()
+        self.x.copy(d)
+        d.axpy(-1.0, self.x0)
+        Md = self._work[-2] if hasattr(self, "_work") else self.x_like()
+        self.M.mult(d, Md)
+        own = compat.dof_counts(self.V)[0]
+        prod = (d.array_r * Md.array_r).reshape(own, ef.NCOMP)
+        kin = 0.5 * self.comm.allreduce(prod[:, :2].sum(), op=MPI.SUM)
+        strain = 0.5 * self.comm.allreduce(prod[:, 2:].sum(), op=MPI.SUM)
+        return kin, strain
+
+    def energy_rates(self):
+        """(power in at loads, power out at radiating boundaries, upwind dissipation rate)."""
+        self.x.copy(self.u.vector)
+        self.u.x.scatter_forward()
+        for tag, (hist, g) in self._hist_const.items():
+            g.value = hist(self.t)
+        for bc, uext, _ in self.outer:
+            arr = compat.function_array(uext)
+            arr[:] = np.asarray(bc.state(self._Xdof, self.t)).T.reshape(-1)
+        p_in = p_rad = 0.0
+        for radiating, P in self._power_forms:
+            val = compat.assemble_scalar(P, self.comm)
+            if radiating:
+                p_rad -= val
+            else:
+                p_in += val
+        Qx = self._work[-2]
+        self.Qd.mult(self.x, Qx)
+        diss = Qx.dot(self.x)
+        return p_in, p_rad, diss
+
+    def update_energy(self):
+        """Advance the energy budget over the last step (trapezoidal rule on the
+        boundary power and dissipation rates) and recompute the stored energy."""
+        t0 = time.perf_counter()
+        if not hasattr(self, "_Xdof"):
+            self._Xdof = compat.dof_coordinates(self.V).T
+        rates = self.energy_rates()
+        ext_rates = [ext.dissipation_rates() for ext in self.extensions]
+        fr = sum(r[0] for r in ext_rates)
+        dm = sum(r[1] for r in ext_rates)
+        rates = rates + (fr, dm)
+        if self._last_rates is not None:
+            h = 0.5 * self.dt
+            p_in, p_rad, diss, fr, dm = (h * (r0 + r1) for r0, r1 in zip(self._last_rates, rates))
+            e = self.energy
+            e.work_in += p_in
+            e.radiated += p_rad
+            e.dissipated_flux += diss
+            e.dissipated_friction += fr
+            e.dissipated_damage += dm
+            e.inflow_total += max(p_in, 0.0) + max(-p_rad, 0.0)
+        self._last_rates = rates
+        self.energy.kinetic, self.energy.strain = self.energies()
+        self.timers.add("energy", time.perf_counter() - t0)
+        return self.energy
+
+    def check_stability(self):
+        """Raise :class:`BlowUpError` on NaN/Inf or energy above everything that flowed in."""
+        e = self.energy
+        bound = 1.5 * (e.initial + e.inflow_total) + 1e-12 * (1.0 + abs(e.initial))
+        if not math.isfinite(e.total) or e.total > bound:
+            raise BlowUpError(
+                f"unstable at step {self.step_count}, t = {self.t:.6g} s: total energy {e.total:.4g} J/m exceeds "
+                f"initial + inflow {e.initial + e.inflow_total:.4g} J/m. The time step dt = {self.dt:.4g} s "
+                f"(CFL {self.dt / (self.h_over_c_min / (2 * self.degree + 1)):.3g}) is too large for this mesh "
+                f"and scheme; use a CFL constant <= {CFL_DEFAULT[self.scheme]} (the stable default)")
+
+    # ------------------------------------------------------------------ info
+    def summary(self):
+        return {
+            "cells": self.num_cells,
+            "dofs": self.num_dofs,
+            "degree": self.degree,
+            "ranks": self.comm.size,
+            "scheme": self.scheme,
+            "stages_per_step": self.num_stages,
+            "dt": self.dt,
+            "cfl": self.dt / (self.h_over_c_min / (2 * self.degree + 1)),
+            "steps": self.step_count,
+            "simulated_time": self.t,
+        }
