@@ -185,3 +185,20 @@ def function_array_of_vec(vec):
     vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
     with vec.localForm() as loc:
         return loc.array_r.copy()
+
+
+def vertex_to_geometry(mesh):
+    """Map topology vertex index -> geometry node index (affine meshes; 0.9:
+    ``mesh.geometry.dofmap`` is a 2D array)."""
+    tdim = mesh.topology.dim
+    c_off, c_arr = connectivity(mesh, tdim, 0)
+    xdofs = mesh.geometry.dofmap.array.reshape(-1, 3)
+    im = mesh.topology.index_map(0)
+    v2g = np.zeros(im.size_local + im.num_ghosts, dtype=np.int64)
+    v2g[c_arr.reshape(-1, 3)] = xdofs[: c_arr.size // 3]
+    return v2g
+
+
+def locate_facets(mesh, marker):
+    """All local facets (interior or not) whose vertices satisfy ``marker``."""
+    return dolfinx.mesh.locate_entities(mesh, mesh.topology.dim - 1, marker)

@@ -1,0 +1,447 @@
+"""Crack interfaces: the interfacial damage / contact model on crack facets.
+
+On crack facets the bulk upwind flux is replaced by the combined Riemann target
+values ``s*``, ``v*+``, ``v*-`` of model.md §3 (eqs. 6-7).  This module
+
+* finds the crack facets of the mesh (Gmsh physical groups -> facet tags),
+* evaluates both sides' traces at Gauss points of every crack facet,
+* calls :mod:`hydrofrac.riemann` (the one implementation of the formulas),
+* integrates the flux corrections ``(s* - s).w + (v* - v).(tau n)`` and adds
+  ``M^{-1}`` times them to the right-hand side (:meth:`Interface.rhs`),
+* carries the interface state per Gauss point (damage D, normal opening delta,
+  tangential slip), integrated with the same Runge-Kutta stages as the fields.
+
+Facets are counted once: each rank handles the crack facets it owns, and
+contributions to ghost cells are sent to their owners by a reverse scatter.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable, Dict, Optional, Sequence
+
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from . import compat
+from . import riemann as rm
+from .element import line_quadrature
+
+#: integer codes of the dominant contact mode, for output
+MODE_BONDED, MODE_STICK, MODE_SLIP, MODE_SEPARATED = 0, 1, 2, 3
+
+
+@dataclass(frozen=True)
+class DamageParams:
+    """Rate-dependent damage law (model.md §3, eqs. 8-10).
+
+    s_bar : fracture strength s̄ [Pa] (paper: 2 MPa)
+    s_onset : damage onset s_ [Pa], < s_bar  [our choice: 0.5 s̄]
+    tau : relaxation time τ̃ [s] (paper's extraction: 30 "ms"; its problems last 1-10 ms,
+        so a scenario parameter; default 30 µs [our choice])
+    a : rate-shape exponent of H(x) = exp(-a x)  [our choice: 5]
+    beta : shear factor of the effective stress  [our choice: 1]
+    """
+
+    s_bar: float = 2.0e6
+    s_onset: float = 1.0e6
+    tau: float = 30e-6
+    a: float = 5.0
+    beta: float = 1.0
+
+    def __post_init__(self):
+        if not self.s_bar > 0:
+            raise ValueError(f"damage s_bar (strength) must be > 0 Pa; got {self.s_bar}")
+        if not 0 <= self.s_onset < self.s_bar:
+            raise ValueError(f"damage s_onset must be in [0, s_bar = {self.s_bar}); got {self.s_onset}")
+        if not self.tau > 0:
+            raise ValueError(f"damage tau (relaxation time) must be > 0 s; got {self.tau}")
+        if not self.a > 0:
+            raise ValueError(f"damage a (rate shape) must be > 0; got {self.a}")
+        if not self.beta >= 0:
+            raise ValueError(f"damage beta (shear factor) must be >= 0; got {self.beta}")
+
+
+@dataclass(frozen=True)
+class ContactParams:
+    """Regularised contact fraction eta (model.md §4).
+
+    delta0 : maximum normalised penetration δ'₀ < 0 (penetration never beyond |δ'₀| δ̃)
+    w0 : normalised separation-velocity width w'₀ > 0 of the contact -> separation ramp
+        [our choice: 0.01, i.e. a bonded-traction excess of 0.005 s̄]
+    regularized : False gives the exact (discontinuous) map of fig. 3, for comparison
+    """
+
+    delta0: float = -0.01
+    w0: float = 0.01
+    regularized: bool = True
+
+    def __post_init__(self):
+        if not self.delta0 < 0:
+            raise ValueError(f"contact delta0 (maximum penetration delta'_0) must be < 0; got {self.delta0}")
+        if not self.w0 > 0:
+            raise ValueError(f"contact w0 (velocity width w'_0) must be > 0; got {self.w0}")
+
+
+@dataclass(frozen=True)
+class Crack:
+    """A crack (or potential crack path) = a facet tag of interior facets.
+
+    tag : facet tag (Gmsh physical group) of its facets
+    friction : Coulomb coefficient k >= 0
+    damage : initial damage, 1 for a pre-existing crack, 0 for an intact interface
+    opening : initial normal opening delta [m]; None = closed: delta'_0 * delta~
+        (in contact, eta = 1) for D > 0, 0 for intact interfaces
+    """
+
+    tag: int
+    friction: float = 0.6
+    damage: float = 1.0
+    opening: Optional[float] = None
+
+    def __post_init__(self):
+        if not self.friction >= 0:
+            raise ValueError(f"crack {self.tag}: friction k must be >= 0; got {self.friction}")
+        if not 0 <= self.damage <= 1:
+            raise ValueError(f"crack {self.tag}: initial damage must be in [0, 1]; got {self.damage}")
+
+
+def crack_facet_indices(mesh, facet_tags, cracks: Sequence[Crack]):
+    """Local indices of the facets of ``cracks`` (owned and ghost), checked to be
+    interior facets; raises a clear error for a missing tag."""
+    comm = mesh.comm
+    tags = [c.tag for c in cracks]
+    if len(set(tags)) != len(tags):
+        raise ValueError(f"crack tags must be distinct; got {tags}")
+    local = set() if facet_tags is None else set(np.unique(facet_tags.values).tolist())
+    present = set().union(*comm.allgather(local))
+    missing = sorted(set(tags) - present)
+    if missing:
+        raise ValueError(f"crack tag(s) {missing} are not in the mesh's facet tags {sorted(present)}; "
+                         "give the crack's Gmsh physical group tag")
+    if not tags:
+        return np.zeros(0, dtype=np.int32)
+    idx = facet_tags.indices[np.isin(facet_tags.values, tags)]
+    ext = compat.exterior_facet_indices(mesh)
+    bad = comm.allreduce(int(np.isin(idx, ext).sum()), op=MPI.SUM)
+    if bad:
+        raise ValueError(f"{bad} crack facet(s) lie on the domain boundary; crack polylines must be interior "
+                         "(end them inside the domain)")
+    return np.unique(idx).astype(np.int32)
+
+
+class Interface:
+    """Interfacial damage model on the crack facets of a :class:`~hydrofrac.solver.Solver`.
+
+    Create the solver with ``crack_facets=crack_facet_indices(...)`` so that the bulk
+    flux skips them; the interface registers itself in ``solver.extensions``.
+
+    ``separation_traction(iface, s_B, t) -> S`` gives the target traction of the
+    separation mode per Gauss point (local components, shape (nf, nq, 2)); the default
+    is traction-free cracks (S = 0).  Hydraulic loading (:mod:`hydrofrac.hydraulics`)
+    replaces it.
+    """
+
+    def __init__(self, solver, facet_tags, cracks: Sequence[Crack], damage: DamageParams = DamageParams(),
+                 contact: ContactParams = ContactParams(), quadrature_degree: Optional[int] = None):
+        t0 = time.perf_counter()
+        self.solver = solver
+        self.cracks = list(cracks)
+        self.damage = damage
+        self.contact = contact
+        self.separation_traction: Optional[Callable] = None
+        mesh, V = solver.mesh, solver.V
+        tdim = mesh.topology.dim
+        all_idx = crack_facet_indices(mesh, facet_tags, cracks)
+        owned = compat.facet_owned_mask(mesh)
+        facets = all_idx[owned[all_idx]]
+        # crack id per facet
+        tag_of = dict(zip(facet_tags.indices.tolist(), facet_tags.values.tolist())) if facets.size else {}
+        self.facets = facets
+        self.crack_tag = np.array([tag_of[f] for f in facets], dtype=np.int32)
+        crack_by_tag = {c.tag: c for c in self.cracks}
+
+        # geometry: vertices, normal, + and - cells
+        f_off, f_arr = compat.connectivity(mesh, tdim - 1, 0)
+        c_off, c_arr = compat.connectivity(mesh, tdim - 1, tdim)
+        x = mesh.geometry.x[:, :2]
+        # vertex -> geometry node (affine P1 mesh: same numbering via the cell maps)
+        v2g = compat.vertex_to_geometry(mesh)
+        nf = facets.size
+        va = x[v2g[f_arr[f_off[facets]]]] if nf else np.zeros((0, 2))
+        vb = x[v2g[f_arr[f_off[facets] + 1]]] if nf else np.zeros((0, 2))
+        tang = vb - va
+        length = np.linalg.norm(tang, axis=1)
+        n = np.stack([tang[:, 1], -tang[:, 0]], axis=1) / np.maximum(length, 1e-300)[:, None]
+        flip = (n[:, 0] < -1e-12) | ((np.abs(n[:, 0]) <= 1e-12) & (n[:, 1] < 0))
+        n[flip] *= -1
+        cells = np.zeros((nf, 2), dtype=np.int32)
+        if nf:
+            if np.any(np.diff(c_off)[facets] != 2):
+                raise RuntimeError("a crack facet does not have two cells on this rank (ghost mode must be shared_facet)")
+            c2 = np.stack([c_arr[c_off[facets]], c_arr[c_off[facets] + 1]], axis=1)
+            g = solver.geometry
+            centroid = g.vertices.mean(axis=1)
+            mid = 0.5 * (va + vb)
+            first_is_plus = np.einsum("fi,fi->f", centroid[c2[:, 0]] - mid, n) < 0
+            cells[:, 0] = np.where(first_is_plus, c2[:, 0], c2[:, 1])
+            cells[:, 1] = np.where(first_is_plus, c2[:, 1], c2[:, 0])
+        self.cells = cells
+        self.n = n
+        self.length = length
+        self.va, self.vb = va, vb
+
+        # Gauss points and traces
+        p = solver.degree
+        qdeg = 2 * p + 1 if quadrature_degree is None else quadrature_degree
+        s, w = line_quadrature(qdeg)
+        self.nq = s.size
+        self.points = va[:, None, :] + s[None, :, None] * tang[:, None, :]  # (nf, nq, 2)
+        self.weights = w[None, :] * length[:, None]  # (nf, nq)
+        pts = self.points.reshape(-1, 2)
+        ref = solver.ref
+        g = solver.geometry
+        self.phi = []
+        for side in range(2):
+            cc = np.repeat(cells[:, side], self.nq)
+            X = g.to_reference(cc, pts) if nf else np.zeros((0, 2))
+            self.phi.append(ref.tabulate(X).reshape(nf, self.nq, -1))
+        dofs = compat.cell_dofs(V)
+        self.cell_dofs = [dofs[cells[:, side]] for side in range(2)]  # (nf, n) block indices
+
+        # materials and fracture scales per facet (component impedances (nf, 2))
+        cd, rho = solver.cd_cell, solver.rho_cell
+        cs = np.sqrt(solver.mu_cell / rho)
+        self.Z = [np.stack([rho[cells[:, s_]] * cd[cells[:, s_]], rho[cells[:, s_]] * cs[cells[:, s_]]], axis=1)
+                  for s_ in range(2)]
+        self.Zt = rm.reduced_impedance(self.Z[0], self.Z[1])  # Z~ per component
+        self.delta_scale = damage.tau * damage.s_bar / self.Zt[:, 0]  # delta~ (eq. 13)
+        self.v_scale = damage.s_bar / self.Zt[:, 0]  # v~
+
+        self.friction = np.array([crack_by_tag[t].friction for t in self.crack_tag])
+        D0 = np.array([crack_by_tag[t].damage for t in self.crack_tag])
+        delta0 = np.array([
+            (crack_by_tag[t].opening if crack_by_tag[t].opening is not None
+             else (contact.delta0 * ds if crack_by_tag[t].damage > 0 else 0.0))
+            for t, ds in zip(self.crack_tag, self.delta_scale)])
+        self.state = np.zeros((3, nf, self.nq))
+        self.state[0] = D0[:, None]
+        self.state[1] = delta0[:, None]
+        self.stage_state = self.state.copy()
+        self.min_opening = np.full((nf, self.nq), np.inf)
+
+        # M^{-1} blocks of the cells touching cracks (owned ones receive the residual)
+        nloc = compat.num_cells_local(mesh)
+        touched = np.unique(cells.reshape(-1))
+        self.owned_cells = np.unique(np.r_[touched[touched < nloc], np.zeros(0, np.int32)]).astype(np.int32)
+        self._r = solver.x_like()
+        self._ghosted_cells_with_flux = np.any(cells >= nloc)
+        self._ghost_flux = solver.comm.allreduce(bool(self._ghosted_cells_with_flux), op=MPI.LOR)
+        self.last = {}
+        solver.extensions.append(self)
+        solver.timers.add("setup", time.perf_counter() - t0)
+        self.evaluate(solver.x, 0.0, store=True)
+
+    # ------------------------------------------------------------------ kernels
+    def traces(self, xloc):
+        """Both sides' (v, s = sigma n) at the Gauss points in local (n, t) components."""
+        out = []
+        U = xloc.reshape(-1, 5)
+        for side in range(2):
+            Uc = U[self.cell_dofs[side]]  # (nf, n, 5)
+            tr = np.einsum("fqn,fnk->fqk", self.phi[side], Uc)
+            v = tr[..., :2]
+            sxx, syy, sxy = tr[..., 2], tr[..., 3], tr[..., 4]
+            nx, ny = self.n[:, None, 0], self.n[:, None, 1]
+            s = np.stack([sxx * nx + sxy * ny, sxy * nx + syy * ny], axis=-1)
+            nn = np.broadcast_to(self.n[:, None, :], v.shape)
+            out.append((rm.to_local(v, nn), rm.to_local(s, nn)))
+        return out
+
+    def targets(self, xloc, z, t):
+        """Riemann target values and mode fractions at every Gauss point.
+
+        Returns a dict of (nf*nq, ...) arrays in local components: s_star, vp_star,
+        vm_star, vp, vm, sp, sm, s_B, S, eta, gamma, D, w (normalised separation
+        velocity jump).
+        """
+        (vp, sp), (vm, sm) = self.traces(xloc)
+        nf, nq = self.facets.size, self.nq
+        flat = lambda a: a.reshape(nf * nq, -1)  # noqa: E731
+        vp, sp, vm, sm = flat(vp), flat(sp), flat(vm), flat(sm)
+        Zp = np.repeat(self.Z[0], nq, axis=0)
+        Zm = np.repeat(self.Z[1], nq, axis=0)
+        Zt = np.repeat(self.Zt, nq, axis=0)
+        k = np.repeat(self.friction, nq)
+        D = z[0].reshape(-1)
+        delta = z[1].reshape(-1)
+        bonded = rm.bonded(vp, vm, sp, sm, Zp, Zm)
+        s_B = bonded[0]
+        if self.separation_traction is None:
+            S = np.zeros_like(s_B)
+        else:
+            S = self.separation_traction(self, s_B.reshape(nf, nq, 2), t).reshape(-1, 2)
+        sep = rm.separation(vp, vm, sp, sm, Zp, Zm, S)
+        slip = rm.slip(vp, vm, sp, sm, Zp, Zm, k, *bonded)
+        gamma = rm.stick_flag(s_B, k)
+        w_jump = 2.0 / Zt[:, 0] * (s_B[:, 0] - S[:, 0])  # [[v_S^1]] (eq. 11-12)
+        dn = delta / np.repeat(self.delta_scale, nq)
+        wn = w_jump / np.repeat(self.v_scale, nq)
+        if self.contact.regularized:
+            eta = rm.eta_regularized(dn, wn, self.contact.delta0, self.contact.w0)
+        else:
+            eta = rm.eta_exact(dn, wn)
+        s_star, vp_star, vm_star = rm.combine(D, eta, gamma, bonded, slip, sep)
+        return dict(s_star=s_star, vp_star=vp_star, vm_star=vm_star, vp=vp, vm=vm, sp=sp, sm=sm, s_B=s_B, S=S,
+                    eta=eta, gamma=gamma, D=D, w=wn, Zp=Zp, Zm=Zm)
+
+    def evaluate(self, x, t, store=False, z=None):
+        """Targets at state vector x (ghosts must be current)."""
+        with x.localForm() as xl:
+            xloc = xl.array_r
+            z = self.state if z is None else z
+            T = self.targets(xloc, z, t)
+        if store:
+            self.last = T
+        return T
+
+    def rhs(self, y, t, out):
+        """Add M^{-1} (interface flux terms) into ``out``; return the state rates."""
+        t0 = time.perf_counter()
+        z = self.stage_state
+        T = self.evaluate(y, t, z=z)
+        nf, nq = self.facets.size, self.nq
+        n = np.repeat(self.n, nq, axis=0)
+        # Cartesian corrections per side: momentum (s* - s), kinematics (v* - v)
+        ds_p = rm.to_global(T["s_star"] - T["sp"], n)
+        ds_m = rm.to_global(T["s_star"] - T["sm"], n)
+        dv_p = rm.to_global(T["vp_star"] - T["vp"], n)
+        dv_m = rm.to_global(T["vm_star"] - T["vm"], n)
+        wq = self.weights.reshape(-1)
+        with self._r.localForm() as rl:
+            r = rl.array
+            r[:] = 0.0
+            R = r.reshape(-1, 5)
+            for side, dsv, dvv, sgn in ((0, ds_p, dv_p, 1.0), (1, ds_m, dv_m, -1.0)):
+                # side -: outward normal -n and traction -s*: both terms change sign
+                nn = sgn * n
+                F = np.empty((nf * nq, 5))
+                F[:, 0:2] = sgn * dsv
+                F[:, 2] = dvv[:, 0] * nn[:, 0]
+                F[:, 3] = dvv[:, 1] * nn[:, 1]
+                F[:, 4] = dvv[:, 0] * nn[:, 1] + dvv[:, 1] * nn[:, 0]
+                F *= wq[:, None]
+                contrib = np.einsum("fqn,fqk->fnk", self.phi[side], F.reshape(nf, nq, 5))
+                np.add.at(R, self.cell_dofs[side].reshape(-1), contrib.reshape(-1, 5))
+        if self._ghost_flux:
+            self._r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        # apply the per-cell inverse mass of the touched owned cells
+        cells = self.owned_cells
+        if cells.size:
+            dofs = compat.cell_dofs(self.solver.V)[cells]  # (nc, n)
+            idx = (dofs[:, :, None] * 5 + np.arange(5)).reshape(cells.size, -1)
+            rr = self._r.array_r[idx]
+            upd = np.einsum("cij,cj->ci", self.solver.Minv_cell[cells], rr)
+            oa = out.array
+            np.add.at(oa, idx.reshape(-1), upd.reshape(-1))
+        # state rates: damage, normal opening, slip
+        rates = np.zeros_like(z)
+        d = self.damage
+        s_eff = rm.effective_stress(T["s_B"], d.beta)
+        Dt = rm.target_damage(s_eff, d.s_onset, d.s_bar)
+        rates[0] = rm.damage_rate(T["D"], Dt, d.tau, d.a).reshape(nf, nq)
+        jump = T["vm_star"] - T["vp_star"]
+        rates[1] = jump[:, 0].reshape(nf, nq)
+        rates[2] = jump[:, 1].reshape(nf, nq)
+        self.solver.timers.add("interface kernel", time.perf_counter() - t0)
+        return rates
+
+    def constrain(self, z):
+        """Damage stays in [D_n, 1] (never decreases); the opening never goes below the
+        maximum penetration delta'_0 delta~ (where eta = 1 and d(delta)/dt = 0)."""
+        z = z.copy()
+        z[0] = np.clip(z[0], self.state[0], 1.0)
+        if self.contact.regularized:
+            z[1] = np.maximum(z[1], self.contact.delta0 * self.delta_scale[:, None])
+        return z
+
+    def end_step(self, x, t, dt):
+        t0 = time.perf_counter()
+        self.stage_state = self.state.copy()
+        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        self.evaluate(x, t, store=True)
+        self.min_opening = np.minimum(self.min_opening, self.state[1])
+        self.solver.timers.add("state update", time.perf_counter() - t0)
+
+    # ------------------------------------------------------------------ energy
+    def dissipation_rates(self):
+        """Interface power terms at the last evaluated state [W/m]: dict with
+        friction (tangential interface power), damage (normal power beyond the
+        separation-traction work), flux (characteristic dissipation of the traces),
+        work_in (power of the separation traction S, e.g. fluid pressure, into the body)."""
+        T = self.last
+        if not T:
+            return {"friction": 0.0, "damage": 0.0, "flux": 0.0, "work_in": 0.0}
+        wq = self.weights.reshape(-1)
+        jump = T["vm_star"] - T["vp_star"]
+        a_S = T["D"] * (1 - T["eta"])
+        sep_rate = a_S * 2.0 / np.repeat(self.Zt[:, 0], self.nq) * (T["s_B"][:, 0] - T["S"][:, 0])
+        p_normal = T["s_star"][:, 0] * jump[:, 0]
+        p_sep = T["S"][:, 0] * sep_rate
+        fric = T["s_star"][:, 1] * jump[:, 1]
+        flux = (T["Zp"] * (T["vp_star"] - T["vp"]) ** 2 + T["Zm"] * (T["vm_star"] - T["vm"]) ** 2).sum(axis=1)
+        comm = self.solver.comm
+        red = lambda a: comm.allreduce(float((a * wq).sum()), op=MPI.SUM)  # noqa: E731
+        return {"friction": red(fric), "damage": red(p_normal - p_sep), "flux": red(flux), "work_in": red(-p_sep)}
+
+    # ------------------------------------------------------------------ output
+    def fields(self):
+        """Per Gauss point output fields (nf, nq) of the last evaluated state."""
+        T = self.last
+        nf, nq = self.facets.size, self.nq
+        if not T:
+            return {}
+        D, eta, gamma = T["D"], T["eta"], T["gamma"]
+        frac = np.stack([1 - D, D * eta * gamma, D * eta * (1 - gamma), D * (1 - eta)], axis=1)
+        return {
+            "D": self.state[0], "eta": eta.reshape(nf, nq), "gamma": gamma.reshape(nf, nq),
+            "opening": self.state[1], "slip": self.state[2],
+            "traction_n": T["s_star"][:, 0].reshape(nf, nq), "traction_t": T["s_star"][:, 1].reshape(nf, nq),
+            "mode": np.argmax(frac, axis=1).reshape(nf, nq).astype(np.int32),
+        }
+
+    def part(self, extra: Optional[Dict[str, np.ndarray]] = None):
+        """Line-mesh output part: per facet the points [a, q_1..q_nq, b] joined by
+        segments, point data at the Gauss points (ends copy the nearest point)."""
+        from .io import VTK_LINE, Part
+        nf, nq = self.facets.size, self.nq
+        pts = np.concatenate([self.va[:, None], self.points, self.vb[:, None]], axis=1).reshape(-1, 2)
+        npf = nq + 2
+        base = np.arange(nf)[:, None] * npf
+        seg = np.arange(npf - 1)
+        cells = np.stack([base + seg, base + seg + 1], axis=-1).reshape(-1, 2)
+        flds = self.fields()
+        if extra:
+            flds.update(extra)
+        pd = {}
+        for k, v in flds.items():
+            v = np.asarray(v).reshape(nf, nq)
+            pd[k] = np.concatenate([v[:, :1], v, v[:, -1:]], axis=1).reshape(-1)
+        cd = {"crack": np.repeat(self.crack_tag, npf - 1).astype(np.int32)}
+        return {"cracks": Part(pts, cells, VTK_LINE, pd, cd)}
+
+    # ------------------------------------------------------------------ checkpoint
+    def checkpoint_state(self):
+        return {"state": self.state.copy(), "min_opening": self.min_opening.copy()}
+
+    def restore_state(self, st):
+        self.state = np.array(st["state"])
+        self.stage_state = self.state.copy()
+        self.min_opening = np.array(st["min_opening"])
+
+    # ------------------------------------------------------------------ diagnostics
+    def max_penetration(self):
+        """Largest penetration -min(delta) seen so far, over all ranks [m]."""
+        loc = float(-self.min_opening.min()) if self.min_opening.size else -np.inf
+        return self.solver.comm.allreduce(loc, op=MPI.MAX)
