@@ -202,3 +202,11 @@ def vertex_to_geometry(mesh):
 def locate_facets(mesh, marker):
     """All local facets (interior or not) whose vertices satisfy ``marker``."""
     return dolfinx.mesh.locate_entities(mesh, mesh.topology.dim - 1, marker)
+
+
+def vertex_global_indices(mesh, local_vertices):
+    """Global vertex numbers of local vertex indices (any shape)."""
+    lv = np.asarray(local_vertices, dtype=np.int32)
+    if lv.size == 0:
+        return lv.astype(np.int64)
+    return mesh.topology.index_map(0).local_to_global(lv.reshape(-1)).reshape(lv.shape).astype(np.int64)

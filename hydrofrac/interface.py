@@ -151,6 +151,7 @@ class Interface:
         self.damage = damage
         self.contact = contact
         self.separation_traction: Optional[Callable] = None
+        self.hydraulics = None  # set by hydrofrac.hydraulics.Hydraulics
         mesh, V = solver.mesh, solver.V
         tdim = mesh.topology.dim
         all_idx = crack_facet_indices(mesh, facet_tags, cracks)
@@ -387,9 +388,13 @@ class Interface:
         jump = T["vm_star"] - T["vp_star"]
         a_S = T["D"] * (1 - T["eta"])
         sep_rate = a_S * 2.0 / np.repeat(self.Zt[:, 0], self.nq) * (T["s_B"][:, 0] - T["S"][:, 0])
-        p_normal = T["s_star"][:, 0] * jump[:, 0]
-        p_sep = T["S"][:, 0] * sep_rate
-        fric = T["s_star"][:, 1] * jump[:, 1]
+        # tractions relative to the initial stress (the energy is measured relative to it)
+        n = np.repeat(self.n, self.nq, axis=0)
+        s0 = self.solver.sigma0
+        s0n = rm.to_local(n @ s0.T, n)  # (sigma0 n) in local components
+        p_normal = (T["s_star"][:, 0] - s0n[:, 0]) * jump[:, 0]
+        p_sep = (T["S"][:, 0] - s0n[:, 0]) * sep_rate
+        fric = (T["s_star"][:, 1] - s0n[:, 1]) * jump[:, 1]
         flux = (T["Zp"] * (T["vp_star"] - T["vp"]) ** 2 + T["Zm"] * (T["vm_star"] - T["vm"]) ** 2).sum(axis=1)
         comm = self.solver.comm
         red = lambda a: comm.allreduce(float((a * wq).sum()), op=MPI.SUM)  # noqa: E731
@@ -409,6 +414,7 @@ class Interface:
             "opening": self.state[1], "slip": self.state[2],
             "traction_n": T["s_star"][:, 0].reshape(nf, nq), "traction_t": T["s_star"][:, 1].reshape(nf, nq),
             "mode": np.argmax(frac, axis=1).reshape(nf, nq).astype(np.int32),
+            **(self.hydraulics.fields() if self.hydraulics is not None else {}),
         }
 
     def part(self, extra: Optional[Dict[str, np.ndarray]] = None):

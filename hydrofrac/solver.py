@@ -72,6 +72,7 @@ class EnergyBudget:
     dissipated_flux: float = 0.0
     dissipated_friction: float = 0.0
     dissipated_damage: float = 0.0
+    dissipated_relaxation: float = 0.0
     inflow_total: float = 0.0  # cumulative positive power in (bound used by the blow-up check)
 
     @property
@@ -82,7 +83,7 @@ class EnergyBudget:
     def balance_error(self):
         """total - (initial + work in - radiated - dissipated), should be ~ time-integration error."""
         expected = (self.initial + self.work_in - self.radiated - self.dissipated_flux
-                    - self.dissipated_friction - self.dissipated_damage)
+                    - self.dissipated_friction - self.dissipated_damage - self.dissipated_relaxation)
         return self.total - expected
 
     def as_dict(self):
@@ -134,12 +135,15 @@ class Solver:
     scheme : "rk4" (default) or "ssprk3"
     crack_facets : local facet indices excluded from the bulk upwind flux (crack
         interfaces carry their own flux, :mod:`hydrofrac.interface`)
+    relaxation : dynamic-relaxation damping c [1/s] (rho dv/dt = div sigma - c rho v),
+        0 for physical dynamics; only to reach static states quickly (e.g. the
+        Sneddon verification).  Its dissipation is reported separately.
     """
 
     def __init__(self, mesh, degree: int, materials: Union[Material, Dict[int, Material]],
                  cell_tags=None, facet_tags=None, bcs: Sequence[BoundaryCondition] = (),
                  sigma0=((0.0, 0.0), (0.0, 0.0)), cfl: Optional[float] = None, dt: Optional[float] = None,
-                 scheme: str = "rk4", crack_facets: Optional[np.ndarray] = None):
+                 scheme: str = "rk4", crack_facets: Optional[np.ndarray] = None, relaxation: float = 0.0):
         t_setup = time.perf_counter()
         self.mesh = mesh
         self.comm = mesh.comm
@@ -183,6 +187,9 @@ class Solver:
                     f"use dt <= {self.dt_stable:.4g} or leave dt unset")
             self.dt = float(dt)
 
+        if not relaxation >= 0:
+            raise ValueError(f"relaxation (damping rate) must be >= 0 1/s; got {relaxation}")
+        self.relaxation = float(relaxation)
         self.crack_facets = np.zeros(0, dtype=np.int32) if crack_facets is None else np.asarray(crack_facets, np.int32)
         self._build_operators()
         self.extensions = []
@@ -502,6 +509,9 @@ class Solver:
         """out = M^{-1}(K y + b(t)) + interface terms; returns the aux-state rates."""
         t0 = time.perf_counter()
         self.A.mult(y, out)
+        if self.relaxation:
+            yv, ov = y.array_r.reshape(-1, ef.NCOMP), out.array.reshape(-1, ef.NCOMP)
+            ov[:, :2] -= self.relaxation * yv[:, :2]
         if self.c0 is not None:
             out.axpy(1.0, self.c0)
         for hist, c in self.c_hist:
@@ -605,19 +615,21 @@ class Solver:
             diss += r["flux"]
             fr += r["friction"]
             dm += r["damage"]
-        rates = (p_in, p_rad, diss, fr, dm)
+        kin, strain = self.energies()
+        rates = (p_in, p_rad, diss, fr, dm, 2.0 * self.relaxation * kin)
         if self._last_rates is not None:
             h = 0.5 * self.dt
-            p_in, p_rad, diss, fr, dm = (h * (r0 + r1) for r0, r1 in zip(self._last_rates, rates))
+            p_in, p_rad, diss, fr, dm, rl = (h * (r0 + r1) for r0, r1 in zip(self._last_rates, rates))
             e = self.energy
             e.work_in += p_in
             e.radiated += p_rad
             e.dissipated_flux += diss
             e.dissipated_friction += fr
             e.dissipated_damage += dm
+            e.dissipated_relaxation += rl
             e.inflow_total += max(p_in, 0.0) + max(-p_rad, 0.0)
         self._last_rates = rates
-        self.energy.kinetic, self.energy.strain = self.energies()
+        self.energy.kinetic, self.energy.strain = kin, strain
         self.timers.add("energy", time.perf_counter() - t0)
         return self.energy
 

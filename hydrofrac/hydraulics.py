@@ -1,0 +1,228 @@
+"""Hydraulic load on cracks: connectivity, the aperture-based pressure factor f_p
+and the separation traction S of loaded cracks (model.md §5, eqs. 14-16).
+
+* A crack facet joins the *network* when it is debonded: its mean damage
+  reaches ``threshold`` (default 0.99 [our choice]; D -> 1 only asymptotically
+  under the rate law).  Source facets (perforations) always belong to it.
+* Network facets that share a vertex are connected (union-find over the
+  facets of all ranks); a component is *loaded* if it contains a source facet.
+* Pressure factor at a crack vertex P: ``f_p(P) = clip(delta_P,max / (delta_bar' delta~), 0, 1)``
+  with ``delta_P,max`` the largest opening at P of the loaded facets meeting at P
+  (the opening at a facet end is its nearest Gauss point's); interpolated
+  linearly along each facet.  Source facets are always fully loaded (f_p = 1):
+  the perforations are connected to the wellbore [our choice].
+  Unregularised mode: f_p = 1 on every facet of a loaded component.
+* Separation traction of loaded facets: ``S^1 = -[f_p p_h(t) + (1 - f_p) <-s_B^1>]``,
+  ``S^2 = 0``; unloaded facets: S = 0.
+
+Connectivity and f_p are updated once per time step from the current state
+(they lag the Runge-Kutta stages by at most one step).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from mpi4py import MPI
+
+from . import compat
+from .boundary import PiecewiseLinear
+from .riemann import macaulay
+
+
+class UnionFind:
+    """Disjoint sets over 0..n-1 with path halving and union by size."""
+
+    def __init__(self, n: int):
+        self.parent = np.arange(n)
+        self.size = np.ones(n, dtype=np.int64)
+
+    def find(self, i: int) -> int:
+        p = self.parent
+        while p[i] != i:
+            p[i] = p[p[i]]
+            i = p[i]
+        return i
+
+    def union(self, i: int, j: int) -> int:
+        ri, rj = self.find(i), self.find(j)
+        if ri == rj:
+            return ri
+        if self.size[ri] < self.size[rj]:
+            ri, rj = rj, ri
+        self.parent[rj] = ri
+        self.size[ri] += self.size[rj]
+        return ri
+
+    def roots(self) -> np.ndarray:
+        return np.array([self.find(i) for i in range(self.parent.size)], dtype=np.int64)
+
+
+def components(edges_vertices: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """Component root per facet of a crack network.
+
+    edges_vertices : (m, 2) vertex ids of each facet (any integer ids)
+    active : (m,) bool, facets in the network; inactive facets get root -1
+
+    Active facets sharing a vertex are joined.
+    """
+    m = edges_vertices.shape[0]
+    uf = UnionFind(m)
+    idx = np.flatnonzero(active)
+    if idx.size:
+        verts = edges_vertices[idx].reshape(-1)
+        owners = np.repeat(idx, 2)
+        order = np.argsort(verts, kind="stable")
+        v_sorted, o_sorted = verts[order], owners[order]
+        same = v_sorted[1:] == v_sorted[:-1]
+        for a, b in zip(o_sorted[:-1][same], o_sorted[1:][same]):
+            uf.union(int(a), int(b))
+    roots = uf.roots()
+    roots[~active] = -1
+    return roots
+
+
+def loaded_facets(edges_vertices, active, source) -> np.ndarray:
+    """(m,) bool: active facets whose component contains an active source facet."""
+    roots = components(edges_vertices, active)
+    src_roots = np.unique(roots[active & source])
+    return active & np.isin(roots, src_roots)
+
+
+def pressure_factor_vertices(edges_vertices, loaded, opening_ends, scale):
+    """f_p per facet end, (m, 2): from the largest opening of the loaded facets at each vertex.
+
+    opening_ends : (m, 2) opening at each facet end; scale : delta_bar' * delta~ (per facet, (m,))
+    """
+    m = edges_vertices.shape[0]
+    fp = np.zeros((m, 2))
+    if not loaded.any():
+        return fp
+    verts = edges_vertices[loaded].reshape(-1)
+    ops = opening_ends[loaded].reshape(-1)
+    uniq, inv = np.unique(verts, return_inverse=True)
+    vmax = np.full(uniq.size, -np.inf)
+    np.maximum.at(vmax, inv, ops)
+    pos = np.searchsorted(uniq, edges_vertices)
+    pos = np.clip(pos, 0, uniq.size - 1)
+    at = np.where(uniq[pos] == edges_vertices, vmax[pos], -np.inf)
+    fp = np.clip(at / np.asarray(scale)[:, None], 0.0, 1.0)
+    fp[~loaded] = 0.0
+    return fp
+
+
+@dataclass(frozen=True)
+class HydraulicParams:
+    """Hydraulic loading of a crack network.
+
+    pressure : p_h(t) [Pa], a piecewise-linear table
+    sources : facet tags of the hydraulic sources (perforations)
+    delta_bar : regularisation delta_bar' in (0, 1] of the pressure factor (eq. 15)
+    regularized : False = f_p = 1 on a loaded component the instant it is connected
+    threshold : mean damage at which a facet joins the network
+    """
+
+    pressure: PiecewiseLinear
+    sources: Sequence[int]
+    delta_bar: float = 0.1
+    regularized: bool = True
+    threshold: float = 0.99
+
+    def __post_init__(self):
+        if not isinstance(self.pressure, PiecewiseLinear):
+            raise ValueError("pressure must be a PiecewiseLinear table of (time, pressure)")
+        if not 0 < self.delta_bar <= 1:
+            raise ValueError(f"delta_bar (pressure-factor regularisation delta_bar') must be in (0, 1]; "
+                             f"got {self.delta_bar}")
+        if not 0 < self.threshold <= 1:
+            raise ValueError(f"threshold (damage at which a facet joins the network) must be in (0, 1]; "
+                             f"got {self.threshold}")
+        if len(self.sources) == 0:
+            raise ValueError("sources: give at least one facet tag of a perforation")
+        object.__setattr__(self, "sources", tuple(int(s) for s in self.sources))
+
+
+class Hydraulics:
+    """Connect the cracks of an :class:`~hydrofrac.interface.Interface` to a fluid
+    pressure; sets its ``separation_traction`` and updates after every step."""
+
+    def __init__(self, iface, params: HydraulicParams):
+        self.iface = iface
+        self.params = params
+        comm = iface.solver.comm
+        present = set().union(*comm.allgather(set(np.unique(iface.crack_tag).tolist())))
+        missing = sorted(set(params.sources) - present)
+        if missing:
+            raise ValueError(f"hydraulic source tag(s) {missing} are not crack tags {sorted(present)}")
+        mesh = iface.solver.mesh
+        tdim = mesh.topology.dim
+        f_off, f_arr = compat.connectivity(mesh, tdim - 1, 0)
+        local_v = np.stack([f_arr[f_off[iface.facets]], f_arr[f_off[iface.facets] + 1]], axis=1) \
+            if iface.facets.size else np.zeros((0, 2), dtype=np.int32)
+        self.vertices = compat.vertex_global_indices(mesh, local_v)  # (nf, 2) global ids
+        # which facet end is va (the first Gauss point side)
+        self.source = np.isin(iface.crack_tag, params.sources)
+        s, _ = np.polynomial.legendre.leggauss(iface.nq)
+        self.s_q = 0.5 * (s + 1)  # Gauss abscissae in [0, 1] from va to vb
+        self.scale = params.delta_bar * iface.delta_scale
+        self.comm = comm
+        self.fp_q = np.zeros((iface.facets.size, iface.nq))
+        self.loaded = np.zeros(iface.facets.size, dtype=bool)
+        self.network = np.zeros(iface.facets.size, dtype=bool)
+        self.p_h = params.pressure(iface.solver.t)
+        iface.separation_traction = self.separation_traction
+        iface.hydraulics = self
+        self.update()
+
+    # ----------------------------------------------------------------- per step
+    def update(self):
+        """Recompute the network, loaded facets and f_p from the current state (collective)."""
+        iface = self.iface
+        D = iface.state[0].mean(axis=1) if iface.facets.size else np.zeros(0)
+        active = (D >= self.params.threshold) | self.source
+        op = iface.state[1]
+        ends = np.stack([op[:, 0], op[:, -1]], axis=1) if iface.facets.size else np.zeros((0, 2))
+        # gather the whole network (crack facets are a small part of the mesh)
+        parts = self.comm.allgather((self.vertices, active, self.source, ends, self.scale))
+        V = np.concatenate([p[0] for p in parts]).reshape(-1, 2)
+        A = np.concatenate([p[1] for p in parts]).astype(bool)
+        Src = np.concatenate([p[2] for p in parts]).astype(bool)
+        E = np.concatenate([p[3] for p in parts]).reshape(-1, 2)
+        Sc = np.concatenate([p[4] for p in parts])
+        loaded = loaded_facets(V, A, Src)
+        offset = sum(p[0].shape[0] for p in parts[: self.comm.rank])
+        mine = slice(offset, offset + iface.facets.size)
+        self.network = A[mine]
+        self.loaded = loaded[mine]
+        if self.params.regularized:
+            fp_ends = pressure_factor_vertices(V, loaded, E, Sc)[mine]
+            fp_q = fp_ends[:, :1] * (1 - self.s_q) + fp_ends[:, 1:] * self.s_q
+            fp_q[self.source] = 1.0
+        else:
+            fp_q = np.ones((iface.facets.size, iface.nq))
+        fp_q[~self.loaded] = 0.0
+        self.fp_q = fp_q
+
+    def separation_traction(self, iface, s_B, t):
+        """S per Gauss point (nf, nq, 2): eq. (16) on loaded facets, 0 elsewhere."""
+        p_h = self.params.pressure(t)
+        S = np.zeros_like(s_B)
+        fp = self.fp_q
+        S[..., 0] = np.where(self.loaded[:, None], -(fp * p_h + (1 - fp) * macaulay(-s_B[..., 0])), 0.0)
+        return S
+
+    def on_step(self, solver):
+        self.update()
+
+    # ----------------------------------------------------------------- output
+    def fields(self):
+        return {"f_p": self.fp_q, "loaded": np.repeat(self.loaded[:, None], self.iface.nq, axis=1).astype(float),
+                "network": np.repeat(self.network[:, None], self.iface.nq, axis=1).astype(float)}
+
+    def loaded_length(self):
+        """Length of the loaded network weighted by f_p, and total network length [m] (global)."""
+        w = self.iface.weights
+        lf = float((self.fp_q * w).sum())
+        ln = float((self.network[:, None] * w).sum())
+        return self.comm.allreduce(lf, op=MPI.SUM), self.comm.allreduce(ln, op=MPI.SUM)

@@ -1,0 +1,257 @@
+"""Rock box with a wellbore, oriented perforations, natural fractures and potential
+crack paths, all embedded as facet polylines of a graded triangle mesh.
+
+Every crack is a straight segment (or a polyline) whose facets carry its own
+facet tag; the interface model (:mod:`hydrofrac.interface`) turns the tag into
+a crack with its friction, initial damage and opening:
+
+* perforations start on the wellbore wall and are hydraulic sources,
+* natural fractures are pre-existing (D = 1) cracks in contact,
+* potential paths are bonded interfaces (D = 0) that can debond.
+
+Mesh size: ``h_crack`` along the cracks (finer, ``h_tip``, within ``tip_radius``
+of crack tips), growing to ``h_far`` over ``grading`` metres (Gmsh Distance +
+Threshold size fields).  The outer boundary is one facet tag (``OUTER``),
+absorbing in the scenarios; the wellbore wall is ``WELLBORE``.
+
+Tags (module constants): cells ``ROCK`` = 1; facets ``WELLBORE`` = 1,
+``OUTER`` = 2, perforation i -> ``PERFORATION + i``, natural fracture j ->
+``NATURAL + j``, potential path k -> ``PATH + k``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from .gmsh_util import build_mesh
+
+ROCK = 1
+WELLBORE = 1
+OUTER = 2
+PERFORATION = 100
+NATURAL = 200
+PATH = 300
+
+
+@dataclass(frozen=True)
+class Perforation:
+    """A perforation leaving the wellbore wall at ``angle`` [deg], ``length`` [m] long,
+    with hydraulic aperture ``width`` [m] (its initial opening)."""
+
+    angle: float
+    length: float
+    width: float = 1e-4
+
+
+@dataclass(frozen=True)
+class Fracture:
+    """A straight natural fracture through ``center`` at ``angle`` [deg] (0 = along x)."""
+
+    center: Tuple[float, float]
+    angle: float
+    length: float
+    friction: float = 0.6
+
+
+@dataclass(frozen=True)
+class Domain:
+    """Box [-half_width, half_width] x [-half_height, half_height] with an optional wellbore
+    of ``wellbore_radius`` at the origin; mesh sizes as in the module docstring."""
+
+    half_width: float = 4.0
+    half_height: float = 4.0
+    wellbore_radius: float = 0.1
+    h_crack: float = 0.05
+    h_tip: Optional[float] = None
+    tip_radius: float = 0.2
+    h_far: float = 0.8
+    grading: float = 2.0
+
+
+@dataclass
+class FractureMesh:
+    """What the generator returns: the DOLFINx mesh with tags and the crack lines."""
+
+    mesh: object
+    cell_tags: object
+    facet_tags: object
+    perforations: List[int] = field(default_factory=list)   # facet tags
+    naturals: List[int] = field(default_factory=list)
+    paths: List[int] = field(default_factory=list)
+    lines: dict = field(default_factory=dict)  # tag -> (points (k, 2))
+
+
+def perforation_points(domain: Domain, perf: Perforation):
+    a = math.radians(perf.angle)
+    d = np.array([math.cos(a), math.sin(a)])
+    p0 = domain.wellbore_radius * d
+    return np.array([p0, p0 + perf.length * d])
+
+
+def fracture_points(frac: Fracture):
+    a = math.radians(frac.angle)
+    d = 0.5 * frac.length * np.array([math.cos(a), math.sin(a)])
+    c = np.asarray(frac.center, dtype=float)
+    return np.array([c - d, c + d])
+
+
+def _segments_cross(p, q, r, s):
+    """Proper crossing of segments pq and rs (shared end points do not count)."""
+    def orient(a, b, c):
+        return np.sign((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
+    return (orient(p, q, r) * orient(p, q, s) < 0) and (orient(r, s, p) * orient(r, s, q) < 0)
+
+
+def check_polyline(name, pts, domain: Domain, on_wellbore_start=False):
+    """Raise ValueError (what to change) if a crack polyline leaves the domain, enters the
+    wellbore, has a zero-length segment or crosses itself."""
+    pts = np.asarray(pts, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape[0] < 2 or not np.all(np.isfinite(pts)):
+        raise ValueError(f"{name}: needs at least two finite (x, y) points; got {pts.tolist()}")
+    seg = np.diff(pts, axis=0)
+    if np.any(np.linalg.norm(seg, axis=1) <= 1e-12):
+        raise ValueError(f"{name}: has a zero-length segment; remove repeated points")
+    margin = domain.h_crack
+    out = (np.abs(pts[:, 0]) > domain.half_width - margin) | (np.abs(pts[:, 1]) > domain.half_height - margin)
+    if np.any(out):
+        raise ValueError(f"{name}: point(s) {pts[out].tolist()} lie outside the domain "
+                         f"[-{domain.half_width}, {domain.half_width}] x [-{domain.half_height}, {domain.half_height}] "
+                         f"(less one crack mesh size {margin} m from the edge); shorten or move the crack, "
+                         "or enlarge the domain")
+    if domain.wellbore_radius > 0:
+        r = np.linalg.norm(pts, axis=1)
+        check = r[1:] if on_wellbore_start else r
+        if np.any(check < domain.wellbore_radius - 1e-9):
+            raise ValueError(f"{name}: enters the wellbore (radius {domain.wellbore_radius} m); move it out")
+    for i in range(len(seg)):
+        for j in range(i + 2, len(seg)):
+            if _segments_cross(pts[i], pts[i + 1], pts[j], pts[j + 1]):
+                raise ValueError(f"{name}: crosses itself (segments {i} and {j}); give a simple polyline")
+    return pts
+
+
+def check_domain(d: Domain):
+    for k in ("half_width", "half_height", "h_crack", "h_far", "grading", "tip_radius"):
+        v = getattr(d, k)
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise ValueError(f"domain: {k} must be a positive length in metres; got {v!r}")
+    if d.wellbore_radius < 0:
+        raise ValueError(f"domain: wellbore_radius must be >= 0; got {d.wellbore_radius}")
+    if d.h_crack > d.h_far:
+        raise ValueError(f"domain: h_crack = {d.h_crack} must not exceed h_far = {d.h_far}")
+    if d.wellbore_radius and d.wellbore_radius >= min(d.half_width, d.half_height) / 2:
+        raise ValueError("domain: the wellbore must be smaller than half the box")
+
+
+def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perforation] = (),
+                  fractures: Sequence[Fracture] = (), paths: Sequence[np.ndarray] = (),
+                  out=None, verbose=False) -> FractureMesh:
+    """Mesh a box with a wellbore, perforations, natural fractures and potential paths.
+
+    ``paths`` are polylines (k, 2); every line is validated before Gmsh runs.
+    """
+    check_domain(domain)
+    lines = {}
+    for i, pf in enumerate(perforations):
+        if not (pf.length > 0 and pf.width > 0):
+            raise ValueError(f"perforation {i}: length and width must be > 0; got {pf.length}, {pf.width}")
+        if domain.wellbore_radius <= 0:
+            raise ValueError("perforations need a wellbore (domain.wellbore_radius > 0)")
+        lines[PERFORATION + i] = check_polyline(f"perforation {i}", perforation_points(domain, pf), domain, True)
+    for j, fr in enumerate(fractures):
+        if not fr.length > 0:
+            raise ValueError(f"natural fracture {j}: length must be > 0; got {fr.length}")
+        lines[NATURAL + j] = check_polyline(f"natural fracture {j}", fracture_points(fr), domain)
+    for k, pth in enumerate(paths):
+        pts = np.asarray(pth, dtype=float)
+        lines[PATH + k] = check_polyline(f"potential path {k}", pts, domain,
+                                         on_wellbore_start=np.linalg.norm(pts[0]) <= domain.wellbore_radius + 1e-9)
+    tips = _tips(lines)
+
+    def build(model):
+        occ = model.occ
+        box = occ.addRectangle(-domain.half_width, -domain.half_height, 0, 2 * domain.half_width,
+                               2 * domain.half_height)
+        surf = [(2, box)]
+        if domain.wellbore_radius > 0:
+            disk = occ.addDisk(0, 0, 0, domain.wellbore_radius, domain.wellbore_radius)
+            surf, _ = occ.cut(surf, [(2, disk)])
+        line_ids, owner = [], []
+        for tag, pts in lines.items():
+            pids = [occ.addPoint(x, y, 0) for x, y in pts]
+            for a, b in zip(pids[:-1], pids[1:]):
+                line_ids.append((1, occ.addLine(a, b)))
+                owner.append(tag)
+        _, out_map = occ.fragment(surf, line_ids)
+        occ.synchronize()
+        surfaces = model.getEntities(2)
+        model.addPhysicalGroup(2, [s[1] for s in surfaces], ROCK)
+        crack_curves = {}
+        for tag, pieces in zip(owner, out_map[len(surf):]):
+            crack_curves.setdefault(tag, []).extend(p[1] for p in pieces if p[0] == 1)
+        for tag, curves in crack_curves.items():
+            model.addPhysicalGroup(1, sorted(set(curves)), tag)
+        # outer and wellbore curves: the surface boundary minus crack curves
+        all_crack = {c for cs in crack_curves.values() for c in cs}
+        bnd = model.getBoundary(surfaces, combined=True, oriented=False)
+        outer, well = [], []
+        for _, c in bnd:
+            if abs(c) in all_crack:
+                continue
+            xmin, ymin, _, xmax, ymax, _ = model.getBoundingBox(1, abs(c))
+            cx, cy = 0.5 * (xmin + xmax), 0.5 * (ymin + ymax)
+            if math.hypot(cx, cy) < 2 * domain.wellbore_radius + 1e-9 and domain.wellbore_radius > 0:
+                well.append(abs(c))
+            else:
+                outer.append(abs(c))
+        model.addPhysicalGroup(1, outer, OUTER)
+        if well:
+            model.addPhysicalGroup(1, well, WELLBORE)
+        # size field: fine at cracks, finer at tips, coarse far away
+        mf = model.mesh.field
+        dist = mf.add("Distance")
+        mf.setNumbers(dist, "CurvesList", sorted(all_crack) + well)
+        mf.setNumber(dist, "NumPointsPerCurve", 200)  # "Sampling" in Gmsh >= 4.11
+        thr = mf.add("Threshold")
+        mf.setNumber(thr, "InField", dist)
+        mf.setNumber(thr, "SizeMin", domain.h_crack)
+        mf.setNumber(thr, "SizeMax", domain.h_far)
+        mf.setNumber(thr, "DistMin", domain.h_crack)
+        mf.setNumber(thr, "DistMax", domain.grading)
+        fields = [thr]
+        if domain.h_tip is not None and tips:
+            pts = [occ.addPoint(x, y, 0) for x, y in tips]
+            occ.synchronize()
+            dtip = mf.add("Distance")
+            mf.setNumbers(dtip, "PointsList", pts)
+            ttip = mf.add("Threshold")
+            mf.setNumber(ttip, "InField", dtip)
+            mf.setNumber(ttip, "SizeMin", domain.h_tip)
+            mf.setNumber(ttip, "SizeMax", domain.h_far)
+            mf.setNumber(ttip, "DistMin", domain.tip_radius)
+            mf.setNumber(ttip, "DistMax", domain.tip_radius + domain.grading)
+            fields.append(ttip)
+        mn = mf.add("Min")
+        mf.setNumbers(mn, "FieldsList", fields)
+        mf.setAsBackgroundMesh(mn)
+        import gmsh
+        gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+        gmsh.option.setNumber("Mesh.Algorithm", 6)
+
+    mesh, ct, ft = build_mesh(comm, build, name="fractures", out=out, verbose=verbose)
+    return FractureMesh(mesh, ct, ft,
+                        perforations=[PERFORATION + i for i in range(len(perforations))],
+                        naturals=[NATURAL + j for j in range(len(fractures))],
+                        paths=[PATH + k for k in range(len(paths))], lines=lines)
+
+
+def _tips(lines):
+    """End points that belong to one line only (crack tips)."""
+    ends = [tuple(np.round(p, 9)) for pts in lines.values() for p in (pts[0], pts[-1])]
+    all_pts = [tuple(np.round(p, 9)) for pts in lines.values() for p in pts]
+    return [e for e in ends if all_pts.count(e) == 1]
