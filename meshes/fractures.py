@@ -122,10 +122,14 @@ def check_polyline(name, pts, domain: Domain, on_wellbore_start=False):
                          f"(less one crack mesh size {margin} m from the edge); shorten or move the crack, "
                          "or enlarge the domain")
     if domain.wellbore_radius > 0:
-        r = np.linalg.norm(pts, axis=1)
-        check = r[1:] if on_wellbore_start else r
-        if np.any(check < domain.wellbore_radius - 1e-9):
+        # distance from the wellbore centre to every segment
+        a, b = pts[:-1], pts[1:]
+        t = np.clip(np.einsum("ij,ij->i", -a, b - a) / np.einsum("ij,ij->i", b - a, b - a), 0.0, 1.0)
+        dist = np.linalg.norm(a + t[:, None] * (b - a), axis=1)
+        if np.any(dist < domain.wellbore_radius * (1 - 1e-9)):
             raise ValueError(f"{name}: enters the wellbore (radius {domain.wellbore_radius} m); move it out")
+        if not on_wellbore_start and np.any(np.linalg.norm(pts, axis=1) <= domain.wellbore_radius * (1 + 1e-9)):
+            raise ValueError(f"{name}: touches the wellbore wall; only perforations start there")
     for i in range(len(seg)):
         for j in range(i + 2, len(seg)):
             if _segments_cross(pts[i], pts[i + 1], pts[j], pts[j + 1]):

@@ -72,14 +72,14 @@ def opening_error(solver, iface, a, dp):
 def main(argv=None):
     parser = scenario_parser("Sneddon's pressurised crack under confinement")
     parser.add_argument("--dp", type=float, default=1.0e6, help="net pressure p_h - p0 [Pa]")
-    parser.add_argument("--relaxation", type=float, default=3000.0,
+    parser.add_argument("--relaxation", type=float, default=1500.0,
                         help="dynamic-relaxation damping c [1/s] that brings the run to the static state "
                              "(0 = undamped dynamics)")
     args = parser.parse_args(argv)
     a = 1.0
     if args.quick:
         kw = dict(size=8.0, h_crack=0.1, h_far=1.5, t_ramp=1.0e-3, relaxation=args.relaxation)
-        t_end = 2.5e-3
+        t_end = 3.0e-3
     else:
         kw = dict(size=10.0, h_crack=0.05, h_far=1.5, t_ramp=1.0e-3, relaxation=args.relaxation)
         t_end = 3.0e-3
