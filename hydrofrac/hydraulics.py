@@ -226,3 +226,22 @@ class Hydraulics:
         lf = float((self.fp_q * w).sum())
         ln = float((self.network[:, None] * w).sum())
         return self.comm.allreduce(lf, op=MPI.SUM), self.comm.allreduce(ln, op=MPI.SUM)
+
+
+def network_distance(edges_vertices, lengths, active, source):
+    """Distance along the network (through active facets) from the nearest source facet,
+    per facet (mean of its two end vertices; inf if not connected)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+    ev = np.asarray(edges_vertices)
+    uniq, inv = np.unique(ev.reshape(-1), return_inverse=True)
+    e = inv.reshape(-1, 2)[active]
+    w = np.asarray(lengths, dtype=float)[active]
+    n = uniq.size
+    G = coo_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+    src = np.unique(inv.reshape(-1, 2)[active & source].reshape(-1))
+    if src.size == 0:
+        return np.full(ev.shape[0], np.inf)
+    d = dijkstra(G, indices=src, min_only=True)
+    dv = d[inv.reshape(-1, 2)]
+    return dv.mean(axis=1)

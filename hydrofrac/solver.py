@@ -310,7 +310,7 @@ class Solver:
         K = compat.assemble_matrix(compat.form(a))
 
         self.Minv, self.Minv_cell = self._inverse_mass()
-        self.M = self._mass_matrix()
+        self.M = _to_baij(self._mass_matrix(), ef.NCOMP)
         self.A = _to_baij(self.Minv.matMult(K), ef.NCOMP)
         K.destroy()
 
@@ -346,7 +346,7 @@ class Solver:
 
         # energy diagnostics: upwind dissipation (quadratic form) and boundary power
         Qd = ef.interior_dissipation(U, W, rho, lam, mu, dS(BULK_FACET))
-        self.Qd = compat.assemble_matrix(compat.form(Qd))
+        self.Qd = _to_baij(compat.assemble_matrix(compat.form(Qd)), ef.NCOMP)
         self.u = compat.function(V, "U")
         self._power_forms = []
         s0 = ufl.as_matrix(self.sigma0.tolist())

@@ -29,13 +29,11 @@ from __future__ import annotations
 import numpy as np
 from mpi4py import MPI
 
-from hydrofrac import CONFINEMENT, ROCK
-from hydrofrac.boundary import Absorbing, PiecewiseLinear, Traction
-from hydrofrac.hydraulics import HydraulicParams, Hydraulics
-from hydrofrac.interface import Crack, DamageParams, Interface, crack_facet_indices
-from hydrofrac.meshes.fractures import OUTER, WELLBORE, Domain, Fracture, Perforation, fracture_mesh
+from hydrofrac import CONFINEMENT, wellbore
+from hydrofrac.boundary import PiecewiseLinear
+from hydrofrac.interface import DamageParams
+from hydrofrac.meshes.fractures import Domain, Fracture, Perforation
 from hydrofrac.run import RunOptions, log, run, scenario_parser
-from hydrofrac.solver import Solver
 
 P_PEAK = 19.4e6
 PERF_ANGLES = (0.0, 90.0, 180.0, 270.0)
@@ -64,30 +62,21 @@ def geometry(x_nf=1.2, nf_length=1.6, perf_length=0.3, path_length=0.6, quick=Fa
 
 def setup(comm=MPI.COMM_WORLD, regularized=True, degree=2, quick=False, x_nf=1.2, tau=30e-6, delta_bar=0.1):
     dom, perfs, nfs, paths = geometry(x_nf=x_nf, quick=quick)
-    fm = fracture_mesh(comm, dom, perforations=perfs, fractures=nfs, paths=paths)
-    sigma0 = -CONFINEMENT * np.eye(2)
-    cracks = ([Crack(t, friction=0.0, damage=1.0, opening=p.width) for t, p in zip(fm.perforations, perfs)]
-              + [Crack(t, friction=f.friction, damage=1.0) for t, f in zip(fm.naturals, nfs)]
-              + [Crack(t, friction=0.6, damage=0.0) for t in fm.paths])
-    p_h = pressure_history()
-    solver = Solver(fm.mesh, degree, ROCK, facet_tags=fm.facet_tags, sigma0=sigma0,
-                    bcs=[Traction(WELLBORE, pressure=p_h), Absorbing(OUTER, stress=sigma0)],
-                    crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks))
-    iface = Interface(solver, fm.facet_tags, cracks, damage=DamageParams(tau=tau))
-    hyd = Hydraulics(iface, HydraulicParams(pressure=p_h, sources=fm.perforations, delta_bar=delta_bar,
-                                            regularized=regularized))
-    return solver, iface, hyd, fm
+    return wellbore.build(comm, dom, perfs, nfs, paths, pressure=pressure_history(), regularized=regularized,
+                          degree=degree, damage=DamageParams(tau=tau), delta_bar=delta_bar)
 
 
 # ## What we watch
 # After every step: is the natural fracture loaded (intersection time), how much
-# of it carries load (f_p-weighted length), and the peak particle velocity on it.
+# of it carries load (f_p-weighted length), and the peak particle velocity on it
+# more than 0.25 m away from the junction.
 class Monitor:
     def __init__(self, solver, iface, hyd, nf_tags):
         self.s, self.iface, self.hyd = solver, iface, hyd
         self.on_nf = np.isin(iface.crack_tag, nf_tags)
         self.nf_length = solver.comm.allreduce(float(iface.weights[self.on_nf].sum()), op=MPI.SUM)
         self.t_intersection = None
+        self.far = 0.25  # m from the junction for the velocity-spike measure
         self.rows = []
 
     def __call__(self, solver):
@@ -99,7 +88,9 @@ class Monitor:
             self.t_intersection = solver.t
         T = self.iface.last
         nq = self.iface.nq
-        sel = np.repeat(nf, nq)
+        # away from the junction (y = 0): the unregularised load hits the whole fracture at once
+        far = np.abs(self.iface.points[..., 1]).reshape(-1) > self.far
+        sel = np.repeat(nf, nq) & far
         vmax = 0.0
         if sel.any():
             vmax = float(max(np.abs(T["vp"][sel]).max(), np.abs(T["vm"][sel]).max()))
