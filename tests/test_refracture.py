@@ -1,0 +1,36 @@
+"""Re-fracture behaviour at --quick size (issue 5): closure after the load is removed,
+re-loading from the perforations outward."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def summary(tmp_path_factory):
+    out = tmp_path_factory.mktemp("refracture")
+    subprocess.run([sys.executable, str(ROOT / "scenarios" / "refracture.py"), "--quick", "--out", str(out)],
+                   check=True, cwd=ROOT, capture_output=True, text=True)
+    return json.loads((out / "summary.json").read_text())
+
+
+def test_cracks_close_to_contact_without_energy_growth(summary):
+    acc = summary["accuracy"]
+    # most of the crack network has gone from separation to contact before the load returns
+    assert acc["separated_fraction_before_reload"] < 0.6, acc
+    # the opening never goes below the permitted penetration delta'_0 delta~
+    assert acc["min_opening"] >= acc["opening_floor"] * (1 + 1e-9), acc
+    # no spurious energy: the budget error does not grow while the load is off
+    assert acc["balance_error_growth_while_off"] < 1e-3 * acc["energy_scale"], acc
+    assert abs(summary["energy"]["balance_error_relative"]) < 1e-3
+
+
+def test_reloading_spreads_from_the_perforations(summary):
+    acc = summary["accuracy"]
+    assert acc["reloaded_facets"] == acc["network_facets"] > 10
+    # facets reach f_p > 0.5 in the order of their distance along the network from the perforations
+    assert acc["reload_order_spearman"] > 0.9, acc
