@@ -445,6 +445,8 @@ class Interface:
         self.state = np.array(st["state"])
         self.stage_state = self.state.copy()
         self.min_opening = np.array(st["min_opening"])
+        if self.hydraulics is not None:
+            self.hydraulics.update()  # network and f_p follow from the restored state
 
     # ------------------------------------------------------------------ diagnostics
     def max_penetration(self):
