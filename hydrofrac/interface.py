@@ -232,10 +232,13 @@ class Interface:
         self.stage_state = self.state.copy()
         self.min_opening = np.full((nf, self.nq), np.inf)
 
-        # M^{-1} blocks of the cells touching cracks (owned ones receive the residual)
+        # M^{-1} blocks of the owned cells next to any crack facet: those next to a facet
+        # owned by another rank receive its residual through the reverse scatter
         nloc = compat.num_cells_local(mesh)
-        touched = np.unique(cells.reshape(-1))
-        self.owned_cells = np.unique(np.r_[touched[touched < nloc], np.zeros(0, np.int32)]).astype(np.int32)
+        counts = np.diff(c_off)[all_idx]
+        first = np.repeat(c_off[all_idx], counts)
+        touched = c_arr[first + np.arange(first.size) - np.repeat(np.cumsum(counts) - counts, counts)]
+        self.owned_cells = np.unique(touched[touched < nloc]).astype(np.int32)
         self._r = solver.x_like()
         self._ghosted_cells_with_flux = np.any(cells >= nloc)
         self._ghost_flux = solver.comm.allreduce(bool(self._ghosted_cells_with_flux), op=MPI.LOR)
@@ -396,9 +399,10 @@ class Interface:
         p_sep = (T["S"][:, 0] - s0n[:, 0]) * sep_rate
         fric = (T["s_star"][:, 1] - s0n[:, 1]) * jump[:, 1]
         flux = (T["Zp"] * (T["vp_star"] - T["vp"]) ** 2 + T["Zm"] * (T["vm_star"] - T["vm"]) ** 2).sum(axis=1)
-        comm = self.solver.comm
-        red = lambda a: comm.allreduce(float((a * wq).sum()), op=MPI.SUM)  # noqa: E731
-        return {"friction": red(fric), "damage": red(p_normal - p_sep), "flux": red(flux), "work_in": red(-p_sep)}
+        local = np.array([(a * wq).sum() for a in (fric, p_normal - p_sep, flux, -p_sep)])
+        tot = np.zeros(4)
+        self.solver.comm.Allreduce(local, tot, op=MPI.SUM)  # one reduction for the four terms
+        return dict(zip(("friction", "damage", "flux", "work_in"), tot.tolist()))
 
     # ------------------------------------------------------------------ output
     def fields(self):

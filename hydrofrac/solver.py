@@ -575,9 +575,9 @@ class Solver:
         self.M.mult(d, Md)
         own = compat.dof_counts(self.V)[0]
         prod = (d.array_r * Md.array_r).reshape(own, ef.NCOMP)
-        kin = 0.5 * self.comm.allreduce(prod[:, :2].sum(), op=MPI.SUM)
-        strain = 0.5 * self.comm.allreduce(prod[:, 2:].sum(), op=MPI.SUM)
-        return kin, strain
+        tot = np.zeros(2)
+        self.comm.Allreduce(np.array([prod[:, :2].sum(), prod[:, 2:].sum()]), tot, op=MPI.SUM)
+        return 0.5 * tot[0], 0.5 * tot[1]
 
     def energy_rates(self):
         """(power in at loads, power out at radiating boundaries, upwind dissipation rate)."""
