@@ -72,6 +72,7 @@ def opening_error(solver, iface, a, dp):
 def main(argv=None):
     parser = scenario_parser("Sneddon's pressurised crack under confinement")
     parser.add_argument("--dp", type=float, default=1.0e6, help="net pressure p_h - p0 [Pa]")
+    parser.add_argument("--p0", type=float, default=CONFINEMENT, help="confinement p0 [Pa] (0: unconfined)")
     parser.add_argument("--relaxation", type=float, default=1500.0,
                         help="dynamic-relaxation damping c [1/s] that brings the run to the static state "
                              "(0 = undamped dynamics)")
@@ -83,7 +84,7 @@ def main(argv=None):
     else:
         kw = dict(size=10.0, h_crack=0.05, h_far=1.5, t_ramp=1.0e-3, relaxation=args.relaxation)
         t_end = 3.0e-3
-    solver, iface, hyd = setup(degree=args.degree or 2, a=a, dp=args.dp, **kw)
+    solver, iface, hyd = setup(degree=args.degree or 2, a=a, dp=args.dp, p0=args.p0, **kw)
     hist = []
 
     def on_step(s):

@@ -117,9 +117,11 @@ def _run(script, tmp_path, *args):
     return json.loads((out / "summary.json").read_text()), out
 
 
-def test_sneddon_opening(tmp_path):
-    """Case 11: static opening of a pressurised crack under confinement, within 2 % (L2, |x| < 0.9a)."""
-    s, _ = _run("sneddon.py", tmp_path)
+@pytest.mark.parametrize("p0", [2.425e6, 0.0], ids=["confined", "unconfined"])
+def test_sneddon_opening(tmp_path, p0):
+    """Case 11: static opening of a pressurised crack within 2 % (L2, |x| < 0.9a), under the
+    confinement p0 = 2.425 MPa with net pressure p_h - p0 = 1 MPa, and unconfined."""
+    s, _ = _run("sneddon.py", tmp_path, "--p0", str(p0))
     acc = s["accuracy"]
     assert acc["opening_centre_exact"] == pytest.approx(0.192e-3, rel=2e-3)
     assert acc["opening_L2_rel_error"] < 0.02, acc
