@@ -1,0 +1,89 @@
+# hydrofrac: set-up, demo, tests and benchmark.
+#
+#   make setup   Debian packages (only the missing ones), .venv, editable install
+#   make demo    the borehole scenario (2 MPI ranks if the machine has 2 cores)
+#   make test    serial tests, then the MPI tests on 2 ranks
+#   make bench   bulk throughput + work-precision benchmark on 1 and 2 ranks
+#
+# DOLFINx, PETSc, Gmsh, NumPy, SciPy, numba, matplotlib and ParaView come from
+# Debian 12; the venv sees them (--system-site-packages) and adds pyvista and tqdm.
+# constraints.txt pins NumPy to the Debian version so pip never replaces it.
+
+SHELL := /bin/bash
+.DEFAULT_GOAL := help
+
+# OpenMPI refuses to run as root (CI containers) without these
+export OMPI_ALLOW_RUN_AS_ROOT := 1
+export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
+
+APT_PACKAGES := python3-dolfinx python3-gmsh python3-meshio python3-scipy python3-pytest python3-mpi4py \
+                python3-numba python3-matplotlib python3-venv python3-pip paraview python3-paraview xvfb
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+NPROC := $(shell nproc 2>/dev/null || echo 1)
+# --oversubscribe: 2 ranks also run on a 1-core CI machine
+MPIRUN := mpirun --oversubscribe
+# wall-clock limits [s] of the test passes: a deadlocked MPI test must not eat the CI budget
+TEST_TIMEOUT ?= 1800
+TEST_TIMEOUT_MPI ?= 900
+PYTEST_FLAGS ?=
+
+.PHONY: help setup apt-packages demo test test-serial test-mpi bench
+
+help:
+	@sed -n '3,7p' Makefile | sed 's/^# *//'
+
+setup: apt-packages $(STAMP)
+
+# dpkg check only; apt-get runs (update + install) when something is missing
+apt-packages:
+	@missing=""; \
+	for p in $(APT_PACKAGES); do \
+	  dpkg -s $$p 2>/dev/null | grep -q '^Status: install ok installed' || missing="$$missing $$p"; \
+	done; \
+	if [ -n "$$missing" ]; then \
+	  echo "[setup] installing Debian packages:$$missing"; \
+	  $(SUDO) apt-get update && \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y $$missing; \
+	fi
+
+$(PY): | apt-packages
+	/usr/bin/python3 -m venv --system-site-packages $(VENV)
+
+$(STAMP): pyproject.toml constraints.txt | $(PY)
+	$(PY) -m pip install -c constraints.txt -e .
+	touch $@
+
+demo: setup
+	@if [ $(NPROC) -ge 2 ]; then \
+	  echo "[demo] mpirun -n 2 $(PY) scenarios/borehole.py"; \
+	  $(MPIRUN) -n 2 $(PY) scenarios/borehole.py; \
+	else \
+	  echo "[demo] $(PY) scenarios/borehole.py (1 core)"; \
+	  $(PY) scenarios/borehole.py; \
+	fi
+	@echo "[demo] ParaView series: results/borehole/borehole.pvd (paraview results/borehole/borehole.pvd)"
+	@echo "[demo] picture:         results/borehole/borehole.png"
+	@echo "[demo] summary:         results/borehole/summary.json, history: results/borehole/history.csv"
+
+test: setup test-serial test-mpi
+
+test-serial: setup
+	timeout $(TEST_TIMEOUT) $(PY) -m pytest -m "not mpi" $(PYTEST_FLAGS)
+
+# pytest exits with 5 when it collects nothing: fine while there are no MPI tests,
+# so look first (serially) and run mpirun only if there is something to run.
+test-mpi: setup
+	@$(PY) -m pytest -m mpi --collect-only -q -p no:cacheprovider >/dev/null; rc=$$?; \
+	if [ $$rc -eq 5 ]; then echo "[test] no MPI tests (-m mpi) collected: skipping the 2-rank pass"; \
+	elif [ $$rc -ne 0 ]; then echo "[test] collecting the MPI tests failed (exit $$rc)"; exit $$rc; \
+	else \
+	  echo "[test] $(MPIRUN) -n 2 $(PY) -m pytest -m mpi"; \
+	  timeout $(TEST_TIMEOUT_MPI) $(MPIRUN) -n 2 $(PY) -m pytest -m mpi -p no:cacheprovider $(PYTEST_FLAGS); \
+	fi
+
+bench: setup
+	$(PY) scenarios/benchmark_bulk.py
+	$(MPIRUN) -n 2 $(PY) scenarios/benchmark_bulk.py
