@@ -1,0 +1,92 @@
+"""An animation of a run (GIF) in the style of the paper's pictures, small enough
+to attach to a report.
+
+    python -m hydrofrac.postprocess.animate results/intersection_regularized
+    python -m hydrofrac.postprocess.animate RUN --kind mesh --max-frames 40 --size 480 360 --fps 6
+
+Every frame is drawn like :mod:`hydrofrac.postprocess.figures` draws one picture
+(``energy``: strain-energy colour, kinetic-energy height; ``mesh``: mesh with
+cracks coloured by f_p), with one colour range and height scale for the whole
+animation.  At most ``--max-frames`` frames of the series are used (evenly
+spread, first and last kept).  The GIF is written with Pillow (no imageio or
+ffmpeg needed); colours are reduced to one 256-colour palette, which keeps a
+60-frame, 560x420 animation at about 1-3 MB.
+Output: ``RUN/figures/<name>_<kind>.gif``.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Optional
+
+from . import figures
+from .rundata import load_run, subsample
+
+
+def animate(source, kind: str = "energy", out=None, max_frames: int = 60, size=(560, 420), fps: float = 8.0,
+            crop="auto", log_decades: Optional[float] = figures.LOG_DECADES) -> Path:
+    """Write the GIF of a run folder; returns its path."""
+    from PIL import Image
+    if kind not in ("energy", "mesh"):
+        raise ValueError(f"unknown kind of animation '{kind}': use 'energy' or 'mesh'")
+    if max_frames < 2:
+        raise ValueError(f"an animation needs at least 2 frames; got --max-frames {max_frames}")
+    run = load_run(source)
+    frames = subsample(run.frames, max_frames)
+    out = Path(out) if out is not None else run.dir / "figures" / f"{run.name}_{kind}.gif"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    bounds = figures.crop_bounds(run, crop)
+    scale = figures.EnergyScale.of(run, frames, bounds, log_decades) if kind == "energy" else None
+    field = figures.crack_colour_field(run) if kind == "mesh" else None
+    images = []
+    for frame in frames:
+        plotter = figures.new_plotter(size)
+        if kind == "energy":
+            figures.draw_energy(plotter, run, frame, scale, bounds, font_scale=0.75)
+        else:
+            figures.draw_mesh(plotter, run, frame, bounds, field=field, font_scale=0.75)
+        img = plotter.screenshot(None, return_img=True)
+        plotter.close()
+        images.append(Image.fromarray(img).convert("RGB"))
+    # one palette for all frames (taken from a strip of samples of them): no flicker, small file
+    strip = Image.new("RGB", (size[0], size[1] * min(len(images), 6)))
+    for i, img in enumerate(subsample(images, 6)):
+        strip.paste(img, (0, i * size[1]))
+    palette = strip.quantize(colors=255, method=Image.MEDIANCUT)
+    frames_p = [img.quantize(palette=palette, dither=Image.NONE) for img in images]
+    duration = int(round(1000 / fps))
+    frames_p[0].save(out, save_all=True, append_images=frames_p[1:], duration=[duration] * (len(frames_p) - 1)
+                     + [4 * duration], loop=0, optimize=True)
+    return out
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m hydrofrac.postprocess.animate",
+                                     description="GIF animation of a run (strain/kinetic energy or mesh + f_p).")
+    parser.add_argument("source", help="output folder of a run (or its .pvd file)")
+    parser.add_argument("--kind", choices=("energy", "mesh"), default="energy", help="what to draw (default energy)")
+    parser.add_argument("--max-frames", type=int, default=60, help="at most this many frames (default 60)")
+    parser.add_argument("--size", type=int, nargs=2, default=(560, 420), metavar=("W", "H"),
+                        help="frame size in pixels (default 560 420)")
+    parser.add_argument("--fps", type=float, default=8.0, help="frames per second (default 8)")
+    parser.add_argument("--crop", nargs="+", default=["auto"],
+                        help="'auto' (around the cracks, default), 'full' or x0 x1 y0 y1 [m]")
+    parser.add_argument("--log", type=float, default=figures.LOG_DECADES, metavar="DECADES",
+                        help="logarithmic strain-energy colours over the top DECADES decades")
+    parser.add_argument("--linear", action="store_true", help="linear strain-energy colours from 0")
+    parser.add_argument("--out", default=None, help="GIF file (default RUN/figures/<name>_<kind>.gif)")
+    args = parser.parse_args(argv)
+    crop = args.crop[0] if len(args.crop) == 1 else [float(c) for c in args.crop]
+    try:
+        gif = animate(args.source, kind=args.kind, out=args.out, max_frames=args.max_frames, size=tuple(args.size),
+                      fps=args.fps, crop=crop, log_decades=None if args.linear else args.log)
+    except (FileNotFoundError, KeyError, ValueError) as err:
+        print(f"animate: {err}", file=sys.stderr)
+        return 2
+    print(gif)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

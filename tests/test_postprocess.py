@@ -1,0 +1,217 @@
+"""The pictures of a run: paper-style figures, charts, animation, ParaView script.
+
+The regularised intersection scenario runs once at its ``--quick`` size, cut to
+150 µs and 6 frames (cracks grow, nothing intersects yet: about 20 s); every
+entry point of ``hydrofrac.postprocess`` then runs on it in a subprocess (VTK
+and DOLFINx do not share one process) and must write a picture of the size
+asked for that is not blank (more than a handful of colours).  The choice of
+frames and the reading of the history are checked on made-up runs.
+"""
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from hydrofrac.postprocess import rundata
+
+NAME = "intersection_regularized"
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory, run_python, repo_root):
+    out = tmp_path_factory.mktemp("postprocess_run")
+    run_python([repo_root / "scenarios" / f"{NAME}.py", "--quick", "--t-end", "1.5e-4", "--frames", "6",
+                "--out", out], timeout=600)
+    return out
+
+
+def colours(png, size=None):
+    """Number of distinct colours of a PNG (after checking its size)."""
+    with Image.open(png) as img:
+        if size is not None:
+            assert img.size == tuple(size), f"{png} is {img.size}, expected {size}"
+        rgb = img.convert("RGB")
+        return len(rgb.getcolors(maxcolors=rgb.width * rgb.height))
+
+
+def printed_paths(stdout):
+    return [Path(line) for line in stdout.splitlines() if line.strip().endswith((".png", ".gif"))]
+
+
+def test_figures_energy_and_mesh(quick_run, run_python, tmp_path):
+    stdout = run_python(["-m", "hydrofrac.postprocess.figures", quick_run, "--frames", "2", "--size", "320", "240",
+                         "--out", tmp_path], timeout=300)
+    pngs = printed_paths(stdout)
+    singles = [p for p in pngs if not p.name.endswith("_sequence.png")]
+    assert sorted(p.name.split("_")[0] for p in singles) == ["energy", "energy", "mesh", "mesh"]
+    for png in singles:
+        assert png.is_file() and png.stat().st_size > 0
+        assert colours(png, (320, 240)) > 10, f"{png} looks blank"
+    for kind in ("energy", "mesh"):
+        sheet = tmp_path / f"{kind}_sequence.png"
+        assert sheet in pngs and colours(sheet, (640, 240)) > 10
+
+
+def test_figures_at_given_times(quick_run, run_python, tmp_path):
+    stdout = run_python(["-m", "hydrofrac.postprocess.figures", quick_run, "--kind", "mesh", "--times", "50us",
+                         "1e-4", "--size", "300", "200", "--crop", "full", "--no-sheet", "--out", tmp_path],
+                        timeout=300)
+    pngs = printed_paths(stdout)
+    assert len(pngs) == 2 and all(p.name.startswith("mesh_") for p in pngs)
+    times = sorted(float(p.stem.split("_")[1].replace("p", ".").rstrip("us")) for p in pngs)
+    assert times[0] == pytest.approx(50, abs=15) and times[1] == pytest.approx(100, abs=15)
+    assert all(colours(p, (300, 200)) > 10 for p in pngs)
+
+
+def test_figures_errors(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "hydrofrac.postprocess.figures", str(tmp_path)],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2 and ".pvd" in res.stderr
+
+
+def test_charts(quick_run, run_python, tmp_path):
+    stdout = run_python(["-m", "hydrofrac.postprocess.charts", quick_run, "--out", tmp_path], timeout=300)
+    names = {p.name for p in printed_paths(stdout)}
+    assert names == {"pressure.png", "energy_budget.png", "crack_length.png", "contact_modes.png", "opening.png",
+                     "charts.png"}
+    for name in names:
+        png = tmp_path / name
+        assert png.stat().st_size > 0 and colours(png) > 10, f"{name} looks blank"
+
+
+def test_crack_statistics(quick_run, run_python):
+    """Lengths and mode fractions integrated from the crack frames add up."""
+    code = ("import json, sys; from hydrofrac.postprocess import rundata as r; run = r.load_run(sys.argv[1]); "
+            "s = r.crack_statistics(run); f = r.opening_floor(run, s); "
+            "print(json.dumps({'stats': {k: v.tolist() for k, v in s.items()}, 'floor': f[0]}))")
+    out = json.loads(run_python(["-c", code, quick_run], timeout=120).splitlines()[-1])
+    s = {k: np.array(v) for k, v in out["stats"].items()}
+    assert len(s["t"]) == len(rundata.load_run(quick_run).frames)  # every frame has cracks
+    total = sum(s[f"fraction_{m}"] for m in rundata.MODES)
+    assert np.allclose(total, 1.0, atol=1e-12)
+    assert np.all(s["loaded_length"] <= s["network_length"] + 1e-12)
+    assert np.all(s["network_length"] <= s["interface_length"] + 1e-12)
+    assert s["damaged_length"][-1] > s["damaged_length"][0]  # the paths debond
+    assert s["interface_length"][0] == pytest.approx(0.3 * 4 + 1.6 + 0.6 * 3 + (1.2 - 0.4), rel=1e-6)
+    # the natural fracture starts pressed to the floor: the penetration never exceeds it
+    assert out["floor"] > 0
+    assert np.all(-s["opening_min"] <= out["floor"] * (1 + 1e-9))
+
+
+def test_animation(quick_run, run_python, tmp_path):
+    gif = tmp_path / "run.gif"
+    stdout = run_python(["-m", "hydrofrac.postprocess.animate", quick_run, "--max-frames", "5", "--size", "240",
+                         "180", "--out", gif], timeout=300)
+    assert str(gif) in stdout
+    assert 0 < gif.stat().st_size < 3e6
+    with Image.open(gif) as img:
+        assert img.size == (240, 180) and img.n_frames == 5
+
+
+def test_everything_in_one_go(quick_run, run_python, tmp_path):
+    stdout = run_python(["-m", "hydrofrac.postprocess", quick_run, "--out", tmp_path, "--frames", "2", "--size", "320",
+                         "240", "--no-animation", "--no-paraview"], timeout=300)
+    assert f"charts:    {tmp_path / 'charts.png'}" in stdout
+    assert (tmp_path / "energy_sequence.png").is_file() and (tmp_path / "mesh_sequence.png").is_file()
+
+
+@pytest.mark.paraview
+@pytest.mark.skipif(shutil.which("pvpython") is None or shutil.which("xvfb-run") is None,
+                    reason="needs pvpython and xvfb-run (Debian packages paraview and xvfb; `make setup` "
+                           "installs them)")
+def test_paraview_script_and_state(quick_run, repo_root, tmp_path):
+    png, state = tmp_path / "shot.png", tmp_path / "run.pvsm"
+
+    def pvpython(args):
+        # xvfb-run -a can lose a race for a display number with a parallel job: one retry
+        for attempt in range(2):
+            res = subprocess.run(["xvfb-run", "-a", "pvpython", *map(str, args)], capture_output=True, text=True,
+                                 timeout=300, cwd=repo_root)
+            if res.returncode == 0:
+                return res.stdout
+        pytest.fail(f"pvpython {args} exited with {res.returncode}\n{res.stdout[-3000:]}\n{res.stderr[-3000:]}")
+
+    stdout = pvpython([repo_root / "postprocess" / "paraview" / "open_run.py", quick_run, "--warp", "--size", "400",
+                       "300", "--png", png, "--state", state])
+    assert stdout.splitlines()[-1] == "open_run: ok"
+    info = json.loads(stdout.splitlines()[-2])
+    assert info["frames"] == len(rundata.load_run(quick_run).frames) and info["crack_colour"] == "f_p"
+    assert info["bulk_cells"] == json.loads((quick_run / "summary.json").read_text())["cells"]
+    assert colours(png, (400, 300)) > 10
+    # the saved state opens again in ParaView
+    loader = tmp_path / "load_state.py"
+    loader.write_text("import sys\nfrom paraview.simple import GetActiveViewOrCreate, LoadState, SaveScreenshot\n"
+                      "LoadState(sys.argv[1])\n"
+                      "SaveScreenshot(sys.argv[2], GetActiveViewOrCreate('RenderView'), ImageResolution=[320, 240])\n"
+                      "print('state loaded')\n")
+    shot = tmp_path / "from_state.png"
+    assert "state loaded" in pvpython([loader, state, shot])
+    assert colours(shot, (320, 240)) > 10
+
+
+# ---------------------------------------------------------------------------- frame choice, history (no VTK)
+def made_up_run(t_frames, history=None, summary=None):
+    frames = [(t, {"bulk": Path(f"b{i}.pvtu")}) for i, t in enumerate(t_frames)]
+    return rundata.Run(dir=Path("."), pvd=Path("x.pvd"), frames=frames, history=history or {},
+                       summary=summary or {})
+
+
+def test_parse_time():
+    assert rundata.parse_time("560us") == pytest.approx(5.6e-4)
+    assert rundata.parse_time("560µs") == pytest.approx(5.6e-4)
+    assert rundata.parse_time("0.9ms") == pytest.approx(9e-4)
+    assert rundata.parse_time("1e-3") == pytest.approx(1e-3)
+    with pytest.raises(ValueError, match="560us"):
+        rundata.parse_time("soon")
+
+
+def test_key_times_intersection():
+    t = np.linspace(0, 1e-3, 201)
+    loaded = np.clip((t - 7.4e-4) / 4e-5, 0, 1) * 1.6
+    run = made_up_run(np.linspace(0, 1e-3, 41), history={"t": t, "nf_loaded_length": loaded},
+                      summary={"accuracy": {"intersection_time": 7.4e-4, "nf_length": 1.6}})
+    times = rundata.key_times(run)
+    assert times[0] < 7.4e-4 < times[1] < 7.5e-4 and times[-1] == 1e-3
+    assert any(7.5e-4 <= x <= 7.65e-4 for x in times)  # half of the natural fracture loaded
+    picked = [f[0] for f in rundata.select_frames(run)]
+    assert picked == sorted(set(picked)) and picked[-1] == 1e-3
+
+
+def test_key_times_refracture():
+    t = np.linspace(0, 1.8e-3, 361)
+    p = np.interp(t, [0, 1e-6, 3e-4, 4e-4, 1.5e-3, 1.51e-3, 1.8e-3], [2.4e6, 19.4e6, 19.4e6, 0, 0, 19.4e6, 19.4e6])
+    run = made_up_run(np.linspace(0, 1.8e-3, 51), history={"t": t, "p_h": p})
+    t_hold, t_off, t_on = rundata.load_breakpoints(run)
+    assert t_hold == pytest.approx(3e-4, abs=6e-6) and t_off == pytest.approx(4e-4, abs=6e-6)
+    assert t_on == pytest.approx(1.5e-3, abs=6e-6)
+    times = rundata.key_times(run)
+    assert len(times) == 6 and t_hold < times[0] < t_off and times[3] < t_on < times[4]
+    # with the separated share of the network: frames while the cracks close and re-open
+    sep = np.where(t < 8e-4, 1.0, np.where(t < 1.5e-3, np.clip(1 - (t - 8e-4) / 1e-4, 0.2, 1), 1.0))
+    sep[(t > 1.5e-3) & (t < 1.52e-3)] = 0.7
+    run.history["separated_fraction"] = sep
+    times = rundata.key_times(run)
+    assert len(times) == 6 and t_hold < times[0] < t_off
+    assert times[1] == pytest.approx(8.1e-4, abs=6e-6) and times[2] == pytest.approx(8.6e-4, abs=6e-6)
+    assert times[3] < t_on < times[4] < 1.52e-3 and times[5] == 1.8e-3
+
+
+def test_select_frames_by_count_and_times():
+    run = made_up_run(np.linspace(0, 1e-3, 11))
+    assert [f[0] for f in rundata.select_frames(run, count=2)] == pytest.approx([1e-4, 1e-3])
+    assert [f[0] for f in rundata.select_frames(run, times=["0.31ms", "290us"])] == pytest.approx([3e-4])
+    assert len(rundata.subsample(run.frames, 4)) == 4 and rundata.subsample(run.frames, 4)[-1] == run.frames[-1]
+
+
+def test_history_after_restart(tmp_path):
+    """A restarted run appends rows from its checkpoint on: the later rows win."""
+    csv = tmp_path / "history.csv"
+    csv.write_text("step,t,kinetic\n0,0,0\n5,1,1\n10,2,2\n5,1,1.5\n10,2,2.5\n15,3,3\n")
+    h = rundata.read_history(csv)
+    assert h["step"].tolist() == [0, 5, 10, 15]
+    assert h["kinetic"].tolist() == [0, 1.5, 2.5, 3]
