@@ -207,7 +207,8 @@ class Interface:
         for side in range(2):
             cc = np.repeat(cells[:, side], self.nq)
             X = g.to_reference(cc, pts) if nf else np.zeros((0, 2))
-            self.phi.append(ref.tabulate(X).reshape(nf, self.nq, -1))
+            phi = ref.tabulate(X)  # (nf * nq, n); explicit n: a rank may own no crack facet
+            self.phi.append(phi.reshape(nf, self.nq, phi.shape[-1]))
         dofs = compat.cell_dofs(V)
         self.cell_dofs = [dofs[cells[:, side]] for side in range(2)]  # (nf, n) block indices
 
@@ -272,7 +273,7 @@ class Interface:
         """
         (vp, sp), (vm, sm) = self.traces(xloc)
         nf, nq = self.facets.size, self.nq
-        flat = lambda a: a.reshape(nf * nq, -1)  # noqa: E731
+        flat = lambda a: a.reshape(nf * nq, a.shape[-1])  # noqa: E731
         vp, sp, vm, sm = flat(vp), flat(sp), flat(vm), flat(sm)
         Zp = np.repeat(self.Z[0], nq, axis=0)
         Zm = np.repeat(self.Z[1], nq, axis=0)
