@@ -1,0 +1,313 @@
+# # Benchmark: speed and accuracy of the bulk DG solver
+#
+# Not a test: a measurement to run by hand (``make bench``) on 1 and 2 ranks,
+#
+# ```
+# python scenarios/benchmark_bulk.py               # serial, ~5 minutes
+# mpirun -n 2 python scenarios/benchmark_bulk.py   # two ranks
+# python scenarios/benchmark_bulk.py --quick       # seconds, small meshes
+# ```
+#
+# It measures three things and writes them to ``postprocess/results/`` (``--out``):
+#
+# 1. **Throughput** of the bulk time step, in DOF·stages per second, for p = 1, 2, 3
+#    on three structured meshes of the unit square each (the largest has ~0.4-0.55
+#    million DOFs); also the bare operator mat-vec ``A.mult`` alone.
+#    File ``bulk_throughput_n<ranks>.csv``.
+# 2. **Memory bandwidth** of the machine: a NumPy copy of a 128 MiB array on every
+#    rank at once, counted as bytes read + bytes written per second (the
+#    write-allocate read of the destination is not counted, so this is a
+#    conservative ``STREAM copy``-like figure).  The throughput is reported as a
+#    fraction of the rate this bandwidth allows under the byte model below.
+# 3. **Work–precision**: the relative error of a plane P wave (exact solution
+#    imposed as the outer state on the whole boundary) against the wall time of
+#    the time loop, over p and h.  Files ``work_precision_n<ranks>.csv`` and ``.png``.
+#
+# ## Byte model of one stage (per DOF)
+#
+# One RK stage of :meth:`hydrofrac.solver.Solver.step` does, per DOF, with 8-byte
+# doubles and every vector entry counted once per pass:
+#
+# * ``A.mult(y, k)``: the stored entries of the BAIJ operator ``A = M⁻¹K`` (8 bytes
+#   each, *including* the structural zeros DOLFINx's sparsity pattern keeps:
+#   ~59, 118, 195 per row for p = 1, 2, 3), one 4-byte column index per 5×5 block,
+#   the row pointers, plus reading ``y`` and writing ``k`` (16 bytes);
+# * the RK vector updates as coded: the copy ``y = x`` (16 bytes), ``y += Σ a_ij k_j``
+#   (``VecMAXPY`` over i earlier stages: (i + 2)·8 bytes), and the final
+#   ``x += Σ b_j k_j`` shared by the s stages ((s + 2)·8/s bytes).  For RK4 these
+#   average 68 bytes per DOF·stage.
+#
+# So bytes/(DOF·stage) = (8·nnz + 4·nblocks + 4·(block rows + 1))/n + 16 + 68 for
+# RK4; for p = 1 about 560 bytes, dominated by the matrix.  A matrix-free kernel
+# would move only the vector traffic (~42-84 bytes), which is why the table also
+# reports the operator's share.  The bound is ``bandwidth / bytes`` DOF·stages/s.
+
+# +
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+from hydrofrac import ROCK, compat
+from hydrofrac.boundary import OuterState
+from hydrofrac.solver import TABLEAUX, Solver
+# -
+
+# ## Sizes
+#
+# (p, N) with an N x N square of right-diagonal triangles (2N² cells,
+# 5(p+1)(p+2)/2 DOFs per cell).
+
+THROUGHPUT = {1: (32, 64, 128), 2: (24, 48, 96), 3: (20, 40, 64)}
+WORK_PRECISION = {1: (8, 16, 32, 64), 2: (8, 16, 32), 3: (8, 16, 32)}
+QUICK_THROUGHPUT = {1: (8, 16, 24), 2: (6, 12, 18), 3: (4, 8, 12)}
+QUICK_WORK_PRECISION = {1: (4, 8, 16), 2: (4, 8), 3: (4, 8)}
+MIN_WALL = 1.0  # seconds of stepping per throughput case
+
+
+def log(comm, *args):
+    if comm.rank == 0:
+        print(*args, flush=True)
+
+
+# ## Memory bandwidth
+
+def copy_bandwidth(comm, mib=128, repeats=7):
+    """Aggregate bytes (read + written) per second of ``np.copyto`` on all ranks at once."""
+    n = mib * 2 ** 20 // 8
+    src = np.random.default_rng(comm.rank).random(n)
+    dst = np.empty_like(src)
+    np.copyto(dst, src)
+    best = math.inf
+    for _ in range(repeats):
+        comm.barrier()
+        t0 = time.perf_counter()
+        np.copyto(dst, src)
+        comm.barrier()
+        best = min(best, time.perf_counter() - t0)
+    return comm.size * 2 * src.nbytes / best
+
+
+# ## Byte model
+
+def bytes_per_dof_stage(solver: Solver):
+    """(operator bytes, RK vector bytes) per DOF·stage, as documented above."""
+    info = solver.A.getInfo(info=solver.A.InfoType.GLOBAL_SUM)
+    nnz = info["nz_used"]
+    n = solver.num_dofs
+    bs = solver.A.getBlockSize()
+    operator = (8 * nnz + 4 * nnz / bs ** 2 + 4 * (n / bs + solver.comm.size)) / n + 16
+    a, b, _ = TABLEAUX[solver.scheme]
+    s = len(b)
+    rk = 16 + sum((len(row) + 2) * 8 for row in a if row) / s + (s + 2) * 8 / s
+    return operator, rk
+
+
+# ## Throughput of the time step
+
+def unit_square(comm, N):
+    return compat.create_rectangle(comm, (0.0, 0.0), (1.0, 1.0), N, N)
+
+
+def timed(comm, fn, count):
+    comm.barrier()
+    t0 = time.perf_counter()
+    for _ in range(count):
+        fn()
+    comm.barrier()
+    return comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
+
+
+def throughput_case(comm, p, N, bandwidth):
+    t0 = time.perf_counter()
+    solver = Solver(unit_square(comm, N), p, ROCK)
+    setup = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
+    x = solver.x.duplicate()
+    x.setRandom()
+    x.copy(solver.x)
+    y = x.duplicate()
+    n, s = solver.num_dofs, solver.num_stages
+    # calibrate the number of steps on one step, then time
+    one = timed(comm, solver.step, 1)
+    steps = max(3, int(math.ceil(MIN_WALL / max(one, 1e-9))))
+    steps = comm.bcast(steps, root=0)
+    wall = timed(comm, solver.step, steps)
+    mults = max(3, steps * s)
+    wall_mult = timed(comm, lambda: solver.A.mult(x, y), mults)
+    op_bytes, rk_bytes = bytes_per_dof_stage(solver)
+    rate = n * s * steps / wall
+    row = {
+        "p": p, "N": N, "cells": solver.num_cells, "dofs": n, "ranks": comm.size, "setup_s": setup,
+        "steps": steps, "wall_s": wall, "dof_stages_per_s": rate, "dof_stages_per_s_per_rank": rate / comm.size,
+        "mult_dofs_per_s": n * mults / wall_mult,
+        "bytes_per_dof_stage": op_bytes + rk_bytes, "operator_bytes_per_dof": op_bytes,
+        "bandwidth_GBs": bandwidth / 1e9,
+        "fraction_of_bound": rate * (op_bytes + rk_bytes) / bandwidth,
+        "mult_fraction_of_bound": n * mults / wall_mult * op_bytes / bandwidth,
+    }
+    for v in (x, y):
+        v.destroy()
+    return row
+
+
+# ## Work–precision: a plane P wave
+#
+# A Gaussian pulse of width 0.12 m travelling at c_d in the direction at 0.3 rad
+# from the x axis, centred in the unit square at t = 0, run for 0.2 m of travel.
+# The exact state is imposed as the outer state on every boundary facet, so the
+# only error is the discretisation's.  The error is measured in the mass-matrix
+# (energy) norm, ρ|v|² + σ:C⁻¹σ, of the difference between the DG solution and
+# the nodal interpolant of the exact one, relative to the norm of the latter.
+
+DIRECTION = np.array([math.cos(0.3), math.sin(0.3)])
+WIDTH = 0.12
+TRAVEL = 0.2
+
+
+def plane_wave(x, t, mat=ROCK):
+    """Exact plane P wave: (v_x, v_y, s_xx, s_yy, s_xy) at points x (3, m) and time t."""
+    d = DIRECTION
+    xi = d[0] * (x[0] - 0.5) + d[1] * (x[1] - 0.5) - mat.cd * t
+    g = np.exp(-(xi / WIDTH) ** 2)
+    S = -(mat.lam * np.eye(2) + 2 * mat.mu * np.outer(d, d)) / mat.cd
+    return np.vstack([d[0] * g, d[1] * g, S[0, 0] * g, S[1, 1] * g, S[0, 1] * g])
+
+
+def energy_norm(solver, values):
+    """sqrt(u^T M u) of the owned nodal values (own, 5)."""
+    u = solver.x.duplicate()
+    u.array[:] = values.reshape(-1)
+    Mu = u.duplicate()
+    solver.M.mult(u, Mu)
+    val = math.sqrt(max(u.dot(Mu), 0.0))
+    u.destroy()
+    Mu.destroy()
+    return val
+
+
+def work_precision_case(comm, p, N):
+    mesh = unit_square(comm, N)
+    facets = compat.locate_boundary_facets(mesh, lambda x: np.full(x.shape[1], True))
+    tags = compat.meshtags(mesh, 1, facets, np.full(facets.size, 1))
+    solver = Solver(mesh, p, ROCK, facet_tags=tags, bcs=[OuterState(1, plane_wave)])
+    solver.set_initial_state(lambda x: plane_wave(x, 0.0))
+    t_end = TRAVEL / ROCK.cd
+    steps = int(math.ceil(t_end / solver.dt - 1e-9))
+    solver.dt = t_end / steps
+    wall = timed(comm, solver.step, steps)
+    own = compat.dof_counts(solver.V)[0]
+    exact = plane_wave(compat.dof_coordinates(solver.V)[:own].T, solver.t).T
+    error = energy_norm(solver, solver.local_array() - exact) / energy_norm(solver, exact)
+    return {"p": p, "N": N, "h": 1.0 / N, "dofs": solver.num_dofs, "ranks": comm.size, "steps": steps,
+            "wall_s": wall, "rel_error": error}
+
+
+# ## Output
+
+def write_csv(path: Path, rows):
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+
+
+def plot_work_precision(rows, png: Path, ranks: int):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6, 4.2), dpi=100)
+    for p in sorted({r["p"] for r in rows}):
+        rs = [r for r in rows if r["p"] == p]
+        ax.loglog([r["wall_s"] for r in rs], [r["rel_error"] for r in rs], "o-", label=f"p = {p}")
+        for r in rs:
+            ax.annotate(f"N={r['N']}", (r["wall_s"], r["rel_error"]), textcoords="offset points", xytext=(4, 3),
+                        fontsize=7)
+    ax.set_xlabel("wall time of the time loop [s]")
+    ax.set_ylabel("relative error (energy norm)")
+    ax.set_title(f"Plane P wave, DG P_p + RK4, {ranks} rank(s)", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(png)
+    plt.close(fig)
+
+
+def rate_table(rows):
+    """Markdown table of the throughput rows."""
+    lines = ["| p | N | DOFs | ranks | DOF·stages/s | per rank | bytes/DOF·stage | bound fraction "
+             "| A.mult fraction |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['p']} | {r['N']} | {r['dofs']} | {r['ranks']} | {r['dof_stages_per_s']:.3g} | "
+                     f"{r['dof_stages_per_s_per_rank']:.3g} | {r['bytes_per_dof_stage']:.0f} | "
+                     f"{r['fraction_of_bound']:.2f} | {r['mult_fraction_of_bound']:.2f} |")
+    return "\n".join(lines)
+
+
+def slopes(rows):
+    """Fitted convergence slope of the error against h per degree."""
+    out = {}
+    for p in sorted({r["p"] for r in rows}):
+        rs = [r for r in rows if r["p"] == p]
+        if len(rs) >= 2:
+            out[p] = float(np.polyfit(np.log([r["h"] for r in rs]), np.log([r["rel_error"] for r in rs]), 1)[0])
+    return out
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description="Throughput and work-precision benchmark of the bulk DG solver")
+    parser.add_argument("--quick", action="store_true", help="small meshes (seconds)")
+    parser.add_argument("--out", default=None,
+                        help="output folder (default postprocess/results, or results/benchmark_quick with --quick)")
+    parser.add_argument("--skip-work-precision", action="store_true", help="throughput and bandwidth only")
+    args = parser.parse_args(argv)
+    comm = MPI.COMM_WORLD
+    out = Path(args.out or ("results/benchmark_quick" if args.quick else "postprocess/results"))
+    if comm.rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+    tp_sizes = QUICK_THROUGHPUT if args.quick else THROUGHPUT
+    wp_sizes = QUICK_WORK_PRECISION if args.quick else WORK_PRECISION
+
+    bandwidth = copy_bandwidth(comm)
+    log(comm, f"[bench] {comm.size} rank(s); memory copy bandwidth {bandwidth / 1e9:.2f} GB/s "
+              "(read + write, all ranks)")
+    rows = []
+    for p, Ns in tp_sizes.items():
+        for N in Ns:
+            r = throughput_case(comm, p, N, bandwidth)
+            rows.append(r)
+            log(comm, f"[bench] p={p} N={N:4d} {r['dofs']:8d} DOFs: step {r['dof_stages_per_s']:.3g} DOF*stages/s "
+                      f"({r['fraction_of_bound']:.2f} of the bound at {r['bytes_per_dof_stage']:.0f} B), "
+                      f"A.mult {r['mult_dofs_per_s']:.3g} DOF/s ({r['mult_fraction_of_bound']:.2f}), "
+                      f"setup {r['setup_s']:.1f} s")
+    if comm.rank == 0:
+        write_csv(out / f"bulk_throughput_n{comm.size}.csv", rows)
+        print(rate_table(rows), flush=True)
+
+    if not args.skip_work_precision:
+        wp = []
+        for p, Ns in wp_sizes.items():
+            for N in Ns:
+                r = work_precision_case(comm, p, N)
+                wp.append(r)
+                log(comm, f"[bench] plane wave p={p} N={N:3d} {r['dofs']:7d} DOFs {r['steps']:4d} steps: "
+                          f"error {r['rel_error']:.3e}, wall {r['wall_s']:.2f} s")
+        if comm.rank == 0:
+            write_csv(out / f"work_precision_n{comm.size}.csv", wp)
+            png = out / f"work_precision_n{comm.size}.png"
+            plot_work_precision(wp, png, comm.size)
+            print("[bench] convergence slopes (error vs h): "
+                  + ", ".join(f"p={p}: {s:.2f}" for p, s in slopes(wp).items()), flush=True)
+            print(f"[bench] wrote {out}/bulk_throughput_n{comm.size}.csv, work_precision_n{comm.size}.csv, "
+                  f"{png.name}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
