@@ -31,10 +31,32 @@ from .element import CellGeometry, reference_element
 from .forms import elastodynamics as ef
 from .material import Material
 
-#: Documented CFL constant: dt = CFL * h_min / ((2p + 1) c_d), h_min = smallest
-#: inscribed-circle diameter.  Calibrated in tests/test_bulk.py::test_cfl (stable at
-#: CFL, detected unstable at 1.5 * CFL) for the classical RK4 scheme.
-CFL_DEFAULT = {"rk4": 0.6, "ssprk3": 0.45}
+#: Documented CFL constant C per scheme: dt = C h_min / ((2p + 1) c_d), h_min = smallest
+#: inscribed-circle diameter over the cells (with each cell's c_d).
+#:
+#: Calibration (tests/cfl_calibration.py): the largest stable C_max is the largest dt
+#: with |R(dt lambda)| <= 1 for every eigenvalue lambda of A = M^-1 K (R: the scheme's
+#: stability polynomial), in units of h_min/((2p + 1) c_d).  On an infinite structured
+#: mesh (von Neumann symbol of A on a periodic cell of the mesh), rock (nu = 0.2):
+#:
+#:   ======================  =====  =====  =====  =====
+#:   C_max                   p = 1  p = 2  p = 3  p = 4
+#:   ======================  =====  =====  =====  =====
+#:   rk4, "right" diagonals  1.160  1.088  1.047  0.935
+#:   rk4, "crossed"          1.263  1.188  1.129  1.016
+#:   ssprk3, "right"         1.047  0.981  0.944  0.844
+#:   ssprk3, "crossed"       1.139  1.071  1.018  0.916
+#:   ======================  =====  =====  =====  =====
+#:
+#: Finite meshes allow more (16 x 16 "right", rk4: 1.177, 1.103, 1.058, 0.947; a Gmsh
+#: mesh: 1.52, 1.41, 1.35, 1.20; perturbed structured meshes, where h_min is set by the
+#: worst cell: >= 1.57).  The constants below are stable with a margin of 10 % (rk4) / 9 %
+#: (ssprk3) at p = 4 and >= 23 % / 22 % at p <= 3 for rock; over nu in [-0.5, 0.45] the
+#: p = 4 limit stays >= 0.888 (rk4) and >= 0.801 (ssprk3), 4 % above C.  1.5 C exceeds C_max of
+#: the structured meshes for p <= 3 (rk4: 1.275, ssprk3: 1.155), so a run at 1.5 C
+#: blows up and is stopped by :meth:`Solver.check_stability`
+#: (tests/test_bulk.py::test_cfl_*).
+CFL_DEFAULT = {"rk4": 0.85, "ssprk3": 0.77}
 
 #: Butcher tableaux (a, b, c) of the explicit schemes.
 TABLEAUX = {

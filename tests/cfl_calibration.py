@@ -1,0 +1,113 @@
+"""Calibration of :data:`hydrofrac.solver.CFL_DEFAULT` (a study, not a test).
+
+The largest stable CFL constant C_max of a scheme on a mesh is the largest dt with
+``|R(dt lambda)| <= 1`` for every eigenvalue lambda of the operator ``A = M^-1 K``
+(``R``: the stability polynomial of the Runge-Kutta scheme), in units of
+``h_min / ((2p + 1) c_d)``.
+
+* ``infinite``: von Neumann analysis on an infinite structured mesh: the symbol
+  ``A(theta) = sum_k A[0, k] exp(i theta . k)`` of the rows of one interior mesh square
+  (2 cells "right", 4 cells "crossed") against its 3 x 3 neighbourhood, read off the
+  assembled operator of a small mesh, eigenvalues over a grid of wave numbers theta;
+* ``N x N``: the eigenvalues of A on the unit square (dense for small A, the 60 of
+  largest modulus with ARPACK otherwise), traction-free boundary.
+
+Run: ``.venv/bin/python tests/cfl_calibration.py`` (about 10 minutes on 2 cores;
+``--quick``: infinite meshes with a coarse theta grid, about 2 minutes).
+"""
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+from mpi4py import MPI
+
+from hydrofrac import ROCK, compat
+from hydrofrac.solver import CFL_DEFAULT, Solver
+
+STABILITY_POLYNOMIAL = {
+    "rk4": lambda z: 1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24,
+    "ssprk3": lambda z: 1 + z + z ** 2 / 2 + z ** 3 / 6,
+}
+
+
+def c_max(lam, scheme, samples=4000):
+    """Largest s (to 1/samples of the range) with |R(s' lam)| <= 1 for all s' <= s."""
+    R = STABILITY_POLYNOMIAL[scheme]
+    lam = lam[np.abs(lam) > 1e-9 * np.abs(lam).max()]
+    s = np.linspace(0, 4.0 / np.abs(lam).max(), samples + 1)[1:]
+    for i, si in enumerate(s):
+        if np.abs(R(si * lam)).max() > 1 + 1e-10:
+            return s[i - 1] if i else 0.0
+    return s[-1]
+
+
+def scipy_operator(solver):
+    A = solver.A.convert("aij")
+    indptr, cols, vals = A.getValuesCSR()
+    return sp.csr_matrix((vals, cols, indptr), shape=A.getSize())
+
+
+def symbol_eigenvalues(p, diagonal, material=ROCK, ntheta=24):
+    """Eigenvalues of the symbol of A on an infinite structured mesh, in units of 1/unit."""
+    N = 6
+    mesh = compat.create_rectangle(MPI.COMM_SELF, (0, 0), (N, N), N, N, diagonal=diagonal)
+    s = Solver(mesh, p, material)
+    A = scipy_operator(s)
+    X = compat.dof_coordinates(s.V)[:, :2]
+    dofs = compat.cell_dofs(s.V)
+    centroid = s.geometry.vertices.mean(axis=1)
+
+    def square_rows(i, j):
+        """Indices of the unknowns of square (i, j), in an order that a translation keeps."""
+        keys = []
+        for c in np.flatnonzero((np.floor(centroid[:, 0]) == i) & (np.floor(centroid[:, 1]) == j)):
+            for d in dofs[c]:
+                key = tuple(np.round(np.r_[centroid[c] - (i, j), X[d] - (i, j)], 6))
+                keys.append((key, d))
+        keys.sort()
+        return (np.array([d for _, d in keys])[:, None] * 5 + np.arange(5)).ravel()
+
+    rows = square_rows(2, 2)
+    Arows = A[rows]
+    blocks = {(di, dj): Arows[:, square_rows(2 + di, 2 + dj)].toarray() for di in (-1, 0, 1) for dj in (-1, 0, 1)}
+    coupled = sum(np.abs(b).sum() for b in blocks.values())
+    assert abs(coupled - np.abs(Arows).sum()) <= 1e-9 * coupled, "rows couple beyond the neighbouring squares"
+    theta = np.linspace(-np.pi, np.pi, ntheta, endpoint=False)
+    lam = [np.linalg.eigvals(sum(b * np.exp(1j * (t1 * k[0] + t2 * k[1])) for k, b in blocks.items()))
+           for t1 in theta for t2 in theta]
+    return np.concatenate(lam) * s.h_over_c_min / (2 * p + 1)
+
+
+def mesh_eigenvalues(p, N, diagonal="right"):
+    mesh = compat.create_rectangle(MPI.COMM_SELF, (0, 0), (1, 1), N, N, diagonal=diagonal)
+    s = Solver(mesh, p, ROCK)
+    A = scipy_operator(s)
+    if A.shape[0] <= 5000:
+        lam = np.linalg.eigvals(A.toarray())
+    else:
+        lam = sla.eigs(A, k=60, which="LM", return_eigenvectors=False, tol=1e-8)
+    return lam * s.h_over_c_min / (2 * p + 1)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="infinite meshes only, coarse wave-number grid")
+    args = parser.parse_args()
+    cases = [("infinite", "right"), ("infinite", "crossed")]
+    if not args.quick:
+        cases += [(8, "right"), (16, "right")]
+    print(f"CFL_DEFAULT = {CFL_DEFAULT}; 1.5 x: { {k: 1.5 * v for k, v in CFL_DEFAULT.items()} }")
+    print(f"{'mesh':>20s}  p  C_max rk4  C_max ssprk3")
+    for size, diagonal in cases:
+        for p in (1, 2, 3, 4):
+            lam = (symbol_eigenvalues(p, diagonal, ntheta=12 if args.quick else 24) if size == "infinite"
+                   else mesh_eigenvalues(p, size, diagonal))
+            print(f"{str(size) + ' ' + diagonal:>20s}  {p}  {c_max(lam, 'rk4'):9.4f}  {c_max(lam, 'ssprk3'):12.4f}",
+                  flush=True)
+
+
+if __name__ == "__main__":
+    main()
