@@ -156,7 +156,7 @@ def main(argv=None):
     bar.TitleColor = bar.LabelColor = [0.0, 0.0, 0.0]
     bar.WindowLocation = "Any Location"
     bar.Orientation = "Vertical"
-    bar.Position = [0.89, 0.1]
+    bar.Position = [0.82, 0.1]
     bar.ScalarBarLength = 0.4
     bulk_display.SetScalarBarVisibility(view, True)
 
@@ -214,7 +214,7 @@ def main(argv=None):
             c_bar.TitleColor = c_bar.LabelColor = [0.0, 0.0, 0.0]
             c_bar.WindowLocation = "Any Location"
             c_bar.Orientation = "Vertical"
-            c_bar.Position = [0.89, 0.55]
+            c_bar.Position = [0.82, 0.55]
             c_bar.ScalarBarLength = 0.35
             crack_display.SetScalarBarVisibility(view, True)
 
