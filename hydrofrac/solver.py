@@ -371,6 +371,7 @@ class Solver:
         self.Qd = _to_baij(compat.assemble_matrix(compat.form(Qd)), ef.NCOMP)
         self.u = compat.function(V, "U")
         self._power_forms = []
+        bdiss = None  # upwind dissipation on exterior facets (one form, one reduction)
         s0 = ufl.as_matrix(self.sigma0.tolist())
         self._hist_const = {}
         for bc in self.bcs:
@@ -386,10 +387,21 @@ class Solver:
                 data = self._bc_data(bc, n, uext=self.outer[[o[0].tag for o in self.outer].index(bc.tag)][1])
             else:
                 data = self._bc_data(bc, n)
-            if set(bc.kinds) == {"velocity", "traction"} and not isinstance(bc, (Traction, Velocity)):
-                continue  # Symmetry / Slider: s*.v* = 0 identically
+            D = ef.boundary_dissipation(self.u, rho, lam, mu, n, bc.kinds, data, ds(bc.tag))
+            bdiss = D if bdiss is None else bdiss + D
+            if (set(bc.kinds) == {"velocity", "traction"} and not isinstance(bc, (Traction, Velocity))
+                    and not np.any(self.sigma0)):
+                continue  # Symmetry / Slider without initial stress: (s* - sigma0 n).v* = 0 identically
             P = ef.boundary_power(self.u, rho, lam, mu, n, bc.kinds, data, s0, ds(bc.tag))
             self._power_forms.append((isinstance(bc, RADIATING), compat.form(P)))
+        if free_tag is not None:  # traction-free facets: no power unless sigma0 != 0, but upwind dissipation
+            free = (("traction", "traction"), (0.0, 0.0))
+            D = ef.boundary_dissipation(self.u, rho, lam, mu, n, *free, ds(free_tag))
+            bdiss = D if bdiss is None else bdiss + D
+            if np.any(self.sigma0):
+                P = ef.boundary_power(self.u, rho, lam, mu, n, *free, s0, ds(free_tag))
+                self._power_forms.append((False, compat.form(P)))
+        self._bdiss_form = None if bdiss is None else compat.form(bdiss)
         self._work = [self.x_like() for _ in range(len(TABLEAUX[self.scheme][1]) + 2)]
 
     def _boundary_tags(self):
@@ -602,7 +614,8 @@ class Solver:
         return 0.5 * tot[0], 0.5 * tot[1]
 
     def energy_rates(self):
-        """(power in at loads, power out at radiating boundaries, upwind dissipation rate)."""
+        """(power in at loads, power out at radiating boundaries, upwind dissipation rate on
+        interior and exterior facets)."""
         self.x.copy(self.u.vector)
         self.u.x.scatter_forward()
         for tag, (hist, g) in self._hist_const.items():
@@ -620,6 +633,8 @@ class Solver:
         Qx = self._work[-2]
         self.Qd.mult(self.x, Qx)
         diss = Qx.dot(self.x)
+        if self._bdiss_form is not None:
+            diss += compat.assemble_scalar(self._bdiss_form, self.comm)
         return p_in, p_rad, diss
 
     def update_energy(self):
