@@ -179,15 +179,15 @@ def key_times(run: Run) -> List[float]:
 
 def select_frames(run: Run, times: Optional[Sequence[Union[str, float]]] = None,
                   count: Optional[int] = None) -> List[Tuple[float, Dict[str, Path]]]:
-    """The frames nearest to ``times`` (seconds or '560us'), ``count`` frames evenly
-    spread over the run (the initial one left out), or :func:`key_times`."""
+    """The frames nearest to ``times`` (seconds or '560us'), to ``count`` times evenly
+    spread over the run (t_end k / count, k = 1..count: the last frame always, the
+    initial one never), or to :func:`key_times`."""
     frames = run.frames
     if times:
         wanted = [parse_time(t) for t in times]
     elif count:
-        later = frames[1:] or frames
-        idx = np.unique(np.round(np.linspace(0, len(later) - 1, min(count, len(later)))).astype(int))
-        return [later[i] for i in idx]
+        t0, t1 = frames[0][0], frames[-1][0]
+        wanted = [t0 + (t1 - t0) * k / count for k in range(1, count + 1)]
     else:
         wanted = key_times(run)
     out = []

@@ -203,7 +203,8 @@ def test_key_times_refracture():
 
 def test_select_frames_by_count_and_times():
     run = made_up_run(np.linspace(0, 1e-3, 11))
-    assert [f[0] for f in rundata.select_frames(run, count=2)] == pytest.approx([1e-4, 1e-3])
+    assert [f[0] for f in rundata.select_frames(run, count=2)] == pytest.approx([5e-4, 1e-3])
+    assert [f[0] for f in rundata.select_frames(run, count=1)] == pytest.approx([1e-3])
     assert [f[0] for f in rundata.select_frames(run, times=["0.31ms", "290us"])] == pytest.approx([3e-4])
     assert len(rundata.subsample(run.frames, 4)) == 4 and rundata.subsample(run.frames, 4)[-1] == run.frames[-1]
 
