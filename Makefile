@@ -1,7 +1,7 @@
 # hydrofrac: set-up, demo, tests and benchmark.
 #
 #   make setup   Debian packages (only the missing ones), .venv, editable install
-#   make demo    the borehole scenario (2 MPI ranks if the machine has 2 cores)
+#   make demo    the regularised crack intersection + figures, charts, animation (2 ranks if 2 cores)
 #   make test    serial tests, then the MPI tests on 2 ranks
 #   make bench   bulk throughput + work-precision benchmark on 1 and 2 ranks
 #
@@ -30,7 +30,7 @@ TEST_TIMEOUT ?= 1800
 TEST_TIMEOUT_MPI ?= 900
 PYTEST_FLAGS ?=
 
-.PHONY: help setup apt-packages demo test test-serial test-mpi bench
+.PHONY: help setup apt-packages demo gallery test test-serial test-mpi bench
 
 help:
 	@sed -n '3,7p' Makefile | sed 's/^# *//'
@@ -56,17 +56,34 @@ $(STAMP): pyproject.toml constraints.txt | $(PY)
 	$(PY) -m pip install -c constraints.txt -e .
 	touch $@
 
+# The main job: the regularised crack-intersection problem (paper §3.1), then its
+# figures, charts, animation and ParaView state.  DEMO_ARGS="--quick" for a 1-minute version.
+DEMO      := intersection_regularized
+DEMO_OUT  := results/$(DEMO)
+DEMO_ARGS ?= --frames 80
+
 demo: setup
 	@if [ $(NPROC) -ge 2 ]; then \
-	  echo "[demo] mpirun -n 2 $(PY) scenarios/borehole.py"; \
-	  $(MPIRUN) -n 2 $(PY) scenarios/borehole.py; \
+	  echo "[demo] $(MPIRUN) -n 2 $(PY) scenarios/$(DEMO).py --out $(DEMO_OUT) $(DEMO_ARGS)"; \
+	  $(MPIRUN) -n 2 $(PY) scenarios/$(DEMO).py --out $(DEMO_OUT) $(DEMO_ARGS); \
 	else \
-	  echo "[demo] $(PY) scenarios/borehole.py (1 core)"; \
-	  $(PY) scenarios/borehole.py; \
+	  echo "[demo] $(PY) scenarios/$(DEMO).py --out $(DEMO_OUT) $(DEMO_ARGS) (1 core)"; \
+	  $(PY) scenarios/$(DEMO).py --out $(DEMO_OUT) $(DEMO_ARGS); \
 	fi
-	@echo "[demo] ParaView series: results/borehole/borehole.pvd (paraview results/borehole/borehole.pvd)"
-	@echo "[demo] picture:         results/borehole/borehole.png"
-	@echo "[demo] summary:         results/borehole/summary.json, history: results/borehole/history.csv"
+	$(PY) -m hydrofrac.postprocess $(DEMO_OUT)
+	@echo "[demo] ParaView:  paraview --state=$(DEMO_OUT)/figures/$(DEMO).pvsm  (or paraview $(DEMO_OUT)/$(DEMO).pvd)"
+	@echo "[demo] figures:   $(DEMO_OUT)/figures/energy_sequence.png, mesh_sequence.png (one PNG per frame beside them)"
+	@echo "[demo] animation: $(DEMO_OUT)/figures/$(DEMO)_energy.gif"
+	@echo "[demo] charts:    $(DEMO_OUT)/figures/charts.png (pressure, energy budget, crack length, contact modes, opening)"
+	@echo "[demo] summary:   $(DEMO_OUT)/summary.json, history: $(DEMO_OUT)/history.csv"
+
+GALLERY_RUNS := /tmp/hydrofrac-gallery
+gallery: setup
+	$(PY) scenarios/intersection_regularized.py --quick --frames 120 --out $(GALLERY_RUNS)/reg
+	$(PY) scenarios/intersection_unregularized.py --quick --frames 120 --out $(GALLERY_RUNS)/unreg
+	$(PY) scenarios/refracture.py --quick --frames 120 --out $(GALLERY_RUNS)/refrac
+	$(PY) -m hydrofrac.postprocess.gallery --regularized $(GALLERY_RUNS)/reg --unregularized $(GALLERY_RUNS)/unreg \
+	  --refracture $(GALLERY_RUNS)/refrac --out postprocess/gallery
 
 test: setup test-serial test-mpi
 
