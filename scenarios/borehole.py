@@ -107,7 +107,8 @@ def ring_errors(solver: Solver, a: float, p: float, p0: float, r_out: float):
 # in ``summary.json``.  The Lamé comparison is only meaningful once the wave has
 # left the ring and the near field has settled.  Measured at the default size:
 # relative L2 errors of 2.1 % (σ_rr) and 1.7 % (σ_θθ) with p = 2 at 0.55 ms,
-# 2.1 % and 1.5 % at 1 ms, and 1.5 % and 1.6 % with p = 3 at 0.55 ms; so what is
+# 2.1 % and 1.5 % at 1 ms, and 1.5 % and 1.6 % with p = 3 at 0.55 ms (these two
+# with RK4 at CFL 0.6, the others at 0.85; the time step hardly matters); so what is
 # left is mostly the discretisation (13 straight edges per quarter of the hole),
 # not the transient.
 
