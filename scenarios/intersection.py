@@ -132,7 +132,7 @@ def main(argv=None, regularized=None):
     mon = Monitor(solver, iface, hyd, fm.naturals)
     t_end = args.t_end or (1.0e-3 if not args.quick else 1.0e-3)
     opts = RunOptions(t_end=t_end, out=args.out or f"results/{name}", frames=args.frames or 40,
-                      restart=args.restart, history_every=5)
+                      restart=args.restart, history_every=1)
     summary = run(solver, opts, name=name, extra_parts=iface.part, on_step=mon, history_extra=mon.history,
                   accuracy=lambda s: mon.accuracy())
     acc = summary["accuracy"]

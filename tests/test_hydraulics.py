@@ -141,8 +141,9 @@ def test_intersection_happens_near_paper_time(intersections):
 
 
 def test_pressure_factor_spreads_from_the_junction(intersections):
-    """Regularised: the loaded length on the natural fracture grows over many steps, never the
-    whole fracture in one step; unregularised: the whole fracture is loaded at connection."""
+    """Regularised: the loaded length on the natural fracture grows over many steps (history rows
+    are written every step), never a quarter of the fracture in one step; unregularised: the
+    whole fracture is loaded at connection."""
     import csv
     s, out = intersections["regularized"]
     rows = list(csv.DictReader(open(out / "history.csv")))

@@ -26,7 +26,6 @@ def test_cracks_close_to_contact_without_energy_growth(summary):
     assert acc["min_opening"] >= acc["opening_floor"] * (1 + 1e-9), acc
     # no spurious energy: the budget error does not grow while the load is off
     assert acc["balance_error_growth_while_off"] < 1e-3 * acc["energy_scale"], acc
-    assert abs(summary["energy"]["balance_error_relative"]) < 1e-3
 
 
 def test_reloading_spreads_from_the_perforations(summary):
