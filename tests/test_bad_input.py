@@ -1,0 +1,108 @@
+"""Bad input is refused before a run starts, with a ValueError that names the parameter
+(and the value given), on any number of MPI ranks."""
+from __future__ import annotations
+
+import pytest
+
+import exact
+from hydrofrac import ROCK, Material
+from hydrofrac.boundary import PiecewiseLinear, Traction
+from hydrofrac.run import RunOptions
+from hydrofrac.solver import Solver
+
+
+@pytest.fixture(scope="module")
+def square():
+    return exact.unit_square(2)
+
+
+@pytest.mark.parametrize("E", [0.0, -20e9])
+def test_young_modulus_must_be_positive(E):
+    with pytest.raises(ValueError, match=r"E must be > 0 \(Pa\); got "):
+        Material(E=E, nu=0.2, rho=2500.0)
+
+
+@pytest.mark.parametrize("nu", [-1.0, -1.5, 0.5, 0.7])
+def test_poisson_ratio_must_be_in_range(nu):
+    with pytest.raises(ValueError, match=rf"nu must be in \(-1, 0.5\); got {nu}"):
+        Material(E=20e9, nu=nu, rho=2500.0)
+
+
+@pytest.mark.parametrize("rho", [0.0, -2500.0])
+def test_density_must_be_positive(rho):
+    with pytest.raises(ValueError, match=r"rho must be > 0 \(kg/m\^3\); got "):
+        Material(E=20e9, nu=0.2, rho=rho)
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), "20e9"])
+def test_material_constants_must_be_finite_numbers(value):
+    with pytest.raises(ValueError, match=r"E must be a finite number"):
+        Material(E=value, nu=0.2, rho=2500.0)
+
+
+@pytest.mark.parametrize("degree", [0, 5, -1, 2.0, "2"])
+def test_degree_must_be_1_to_4(square, degree):
+    mesh, _ = square
+    with pytest.raises(ValueError, match=r"degree p must be an integer in 1\.\.4; got "):
+        Solver(mesh, degree, ROCK)
+
+
+def test_time_step_above_stability_limit(square):
+    mesh, _ = square
+    limit = Solver(mesh, 1, ROCK).dt_stable
+    assert Solver(mesh, 1, ROCK, dt=limit).dt == limit  # the limit itself is allowed
+    with pytest.raises(ValueError, match=r"dt = .* s is above the stability limit .* use dt <= "):
+        Solver(mesh, 1, ROCK, dt=1.01 * limit)
+
+
+@pytest.mark.parametrize("dt", [0.0, -1e-6])
+def test_time_step_must_be_positive(square, dt):
+    mesh, _ = square
+    with pytest.raises(ValueError, match=r"dt must be > 0; got "):
+        Solver(mesh, 1, ROCK, dt=dt)
+
+
+def test_cfl_must_be_positive(square):
+    mesh, _ = square
+    with pytest.raises(ValueError, match=r"cfl must be > 0; got "):
+        Solver(mesh, 1, ROCK, cfl=0.0)
+
+
+def test_boundary_tag_not_in_mesh(square):
+    mesh, ft = square  # tags 1..4
+    with pytest.raises(ValueError, match=r"boundary tag\(s\) \[7\] are not in the mesh's facet tags \[1, 2, 3, 4\]"):
+        Solver(mesh, 1, ROCK, facet_tags=ft, bcs=[Traction(exact.LEFT), Traction(7)])
+
+
+def test_boundary_condition_without_facet_tags(square):
+    mesh, _ = square
+    with pytest.raises(ValueError, match=r"boundary tag\(s\) \[1\] are not in the mesh's facet tags"):
+        Solver(mesh, 1, ROCK, bcs=[Traction(1)])
+
+
+def test_two_conditions_on_one_tag(square):
+    mesh, ft = square
+    with pytest.raises(ValueError, match=r"each boundary tag may carry one boundary condition"):
+        Solver(mesh, 1, ROCK, facet_tags=ft, bcs=[Traction(1), Traction(1, pressure=1e6)])
+
+
+def test_material_tag_not_in_mesh():
+    mesh, _, ct = exact.strip(-1.0, 1.0, 4, 0.5, 1)  # cell tags 1, 2
+    with pytest.raises(ValueError, match=r"material cell tag\(s\) \[3\] are not in the mesh's cell tags \[1, 2\]"):
+        Solver(mesh, 1, {1: ROCK, 3: ROCK}, cell_tags=ct)
+
+
+@pytest.mark.parametrize("times", [(0.0, 1e-3, 1e-3), (0.0, 2e-3, 1e-3)])
+def test_history_times_must_increase(times):
+    with pytest.raises(ValueError, match=r"history times must increase strictly; times\[1\] = .* is followed by "):
+        PiecewiseLinear(times, (0.0, 1e6, 2e6))
+
+
+def test_history_lengths_must_match():
+    with pytest.raises(ValueError, match=r"history needs equally long, non-empty times and values; got 2 and 3"):
+        PiecewiseLinear((0.0, 1e-3), (0.0, 1e6, 2e6))
+
+
+def test_run_end_time_must_be_positive():
+    with pytest.raises(ValueError, match=r"t_end must be a positive time in seconds; got "):
+        RunOptions(t_end=0.0)
