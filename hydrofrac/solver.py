@@ -123,7 +123,6 @@ def _to_baij(A, bs):
     indptr, cols, vals = A.getValuesCSR()
     nrows = indptr.size - 1
     rows = np.repeat(np.arange(nrows), np.diff(indptr))
-    r0 = A.getOwnershipRange()[0]
     brow, bcol = rows // bs, cols // bs
     ncb = A.getSize()[1] // bs + 1
     key = brow.astype(np.int64) * ncb + bcol
@@ -137,7 +136,6 @@ def _to_baij(A, bs):
                                comm=A.getComm())
     B.assemble()
     A.destroy()
-    del r0
     return B
 
 
@@ -239,7 +237,6 @@ class Solver:
     def _setup_materials(self, materials, cell_tags):
         ncells = compat.num_cells_with_ghosts(self.mesh)
         if isinstance(materials, Material):
-            mats = {None: materials}
             cell_mat = np.zeros(ncells, dtype=np.int32)
             order = [materials]
         else:
@@ -257,7 +254,6 @@ class Solver:
             nloc = compat.num_cells_local(self.mesh)
             if np.any(cell_mat[:nloc] < 0):
                 raise ValueError("some cells have a tag without a material; give a Material for every cell tag")
-            mats = materials
         self.materials = order
         self.cell_material = cell_mat
         Q0 = compat.dg_space(self.mesh, 0)
@@ -271,7 +267,6 @@ class Solver:
         self.rho_cell = np.array([m.rho for m in order])[np.maximum(cell_mat, 0)]
         self.lam_cell = np.array([m.lam for m in order])[np.maximum(cell_mat, 0)]
         self.mu_cell = np.array([m.mu for m in order])[np.maximum(cell_mat, 0)]
-        del mats
 
     def _interior_facet_tags(self):
         tdim = self.mesh.topology.dim
