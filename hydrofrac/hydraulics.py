@@ -28,7 +28,6 @@ from mpi4py import MPI
 
 from . import compat
 from .boundary import PiecewiseLinear
-from .riemann import macaulay
 
 
 class UnionFind:
@@ -203,14 +202,15 @@ class Hydraulics:
             fp_q = np.ones((iface.facets.size, iface.nq))
         fp_q[~self.loaded] = 0.0
         self.fp_q = fp_q
+        # the separation law per Gauss point until the next update (eq. 16)
+        self._S0_unit = np.zeros(fp_q.shape + (2,))
+        self._S0_unit[..., 0] = np.where(self.loaded[:, None], -fp_q, 0.0)
+        self._cS = np.ascontiguousarray(np.where(self.loaded[:, None], -(1.0 - fp_q), 0.0))
 
-    def separation_traction(self, iface, s_B, t):
-        """S per Gauss point (nf, nq, 2): eq. (16) on loaded facets, 0 elsewhere."""
-        p_h = self.params.pressure(t)
-        S = np.zeros_like(s_B)
-        fp = self.fp_q
-        S[..., 0] = np.where(self.loaded[:, None], -(fp * p_h + (1 - fp) * macaulay(-s_B[..., 0])), 0.0)
-        return S
+    def separation_traction(self, t):
+        """Eq. (16) on loaded facets, S = 0 elsewhere, as the affine law of the interface
+        kernel: S^1 = -f_p p_h - (1 - f_p) <-s_B^1> = S0 + cS <-s_B^1>, S^2 = 0."""
+        return self._S0_unit * self.params.pressure(t), self._cS
 
     def on_step(self, solver):
         self.update()

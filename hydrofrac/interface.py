@@ -25,6 +25,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from . import compat
+from . import kernels
 from . import riemann as rm
 from .element import line_quadrature
 
@@ -137,9 +138,10 @@ class Interface:
     Create the solver with ``crack_facets=crack_facet_indices(...)`` so that the bulk
     flux skips them; the interface registers itself in ``solver.extensions``.
 
-    ``separation_traction(iface, s_B, t) -> S`` gives the target traction of the
-    separation mode per Gauss point (local components, shape (nf, nq, 2)); the default
-    is traction-free cracks (S = 0).  Hydraulic loading (:mod:`hydrofrac.hydraulics`)
+    ``separation_traction(t) -> (S0, cS)`` gives the target traction of the separation
+    mode per Gauss point as ``S = S0 + cS <-s_B^1> e_n`` (local components; S0 of shape
+    (nf, nq, 2), cS of shape (nf, nq), either may be None = 0).  The default is
+    traction-free cracks (S = 0).  Hydraulic loading (:mod:`hydrofrac.hydraulics`, eq. 16)
     replaces it.
     """
 
@@ -211,6 +213,10 @@ class Interface:
             self.phi.append(phi.reshape(nf, self.nq, phi.shape[-1]))
         dofs = compat.cell_dofs(V)
         self.cell_dofs = [dofs[cells[:, side]] for side in range(2)]  # (nf, n) block indices
+        # contiguous copies for the compiled kernels
+        self._dofs = [np.ascontiguousarray(d, dtype=np.int64) for d in self.cell_dofs]
+        self._phi = [np.ascontiguousarray(ph, dtype=float) for ph in self.phi]
+        self._all_dofs = np.ascontiguousarray(dofs, dtype=np.int64)
 
         # materials and fracture scales per facet (component impedances (nf, 2))
         cd, rho = solver.cd_cell, solver.rho_cell
@@ -221,7 +227,8 @@ class Interface:
         self.delta_scale = damage.tau * damage.s_bar / self.Zt[:, 0]  # delta~ (eq. 13)
         self.v_scale = damage.s_bar / self.Zt[:, 0]  # v~
 
-        self.friction = np.array([crack_by_tag[t].friction for t in self.crack_tag])
+        self._Zq = [np.repeat(Z_, self.nq, axis=0) for Z_ in self.Z]  # per Gauss point, for the energy terms
+        self.friction = np.array([crack_by_tag[t].friction for t in self.crack_tag], dtype=float)
         D0 = np.array([crack_by_tag[t].damage for t in self.crack_tag])
         delta0 = np.array([
             (crack_by_tag[t].opening if crack_by_tag[t].opening is not None
@@ -244,69 +251,69 @@ class Interface:
         self._ghosted_cells_with_flux = np.any(cells >= nloc)
         self._ghost_flux = solver.comm.allreduce(bool(self._ghosted_cells_with_flux), op=MPI.LOR)
         self.last = {}
+        self._stage_T = self._buffers()
+        self._views = {}
         solver.extensions.append(self)
         solver.timers.add("setup", time.perf_counter() - t0)
         self.evaluate(solver.x, 0.0, store=True)
 
     # ------------------------------------------------------------------ kernels
-    def traces(self, xloc):
-        """Both sides' (v, s = sigma n) at the Gauss points in local (n, t) components."""
-        out = []
-        U = xloc.reshape(-1, 5)
-        for side in range(2):
-            Uc = U[self.cell_dofs[side]]  # (nf, n, 5)
-            tr = np.einsum("fqn,fnk->fqk", self.phi[side], Uc)
-            v = tr[..., :2]
-            sxx, syy, sxy = tr[..., 2], tr[..., 3], tr[..., 4]
-            nx, ny = self.n[:, None, 0], self.n[:, None, 1]
-            s = np.stack([sxx * nx + sxy * ny, sxy * nx + syy * ny], axis=-1)
-            nn = np.broadcast_to(self.n[:, None, :], v.shape)
-            out.append((rm.to_local(v, nn), rm.to_local(s, nn)))
-        return out
+    def _separation(self, t):
+        """(S0 (nf, nq, 2), cS (nf, nq)) of the separation law S = S0 + cS <-s_B^1> e_n."""
+        nf, nq = self.facets.size, self.nq
+        S0, cS = (None, None) if self.separation_traction is None else self.separation_traction(t)
+        return self._full(S0, (nf, nq, 2)), self._full(cS, (nf, nq))
 
-    def targets(self, xloc, z, t):
-        """Riemann target values and mode fractions at every Gauss point.
+    @staticmethod
+    def _full(a, shape):
+        if a is None:
+            return np.zeros(shape)
+        if isinstance(a, np.ndarray) and a.shape == shape and a.dtype == float and a.flags.c_contiguous:
+            return a
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=float), shape))
+
+    def _buffers(self):
+        N = self.facets.size * self.nq
+        T = {key: np.empty((N, 2)) for key in ("vp", "vm", "sp", "sm", "s_B", "S", "s_star", "vp_star", "vm_star")}
+        T.update({key: np.empty(N) for key in ("eta", "gamma", "w")})
+        return T
+
+    def targets(self, xloc, z, t, T=None):
+        """Riemann target values and mode fractions at every Gauss point (compiled kernel
+        :func:`hydrofrac.kernels.interface_targets`).
 
         Returns a dict of (nf*nq, ...) arrays in local components: s_star, vp_star,
         vm_star, vp, vm, sp, sm, s_B, S, eta, gamma, D, w (normalised separation
-        velocity jump).
+        velocity jump), Zp, Zm.  ``T``: a dict from :meth:`_buffers` to fill (stages
+        reuse one; stored states get their own).
         """
-        (vp, sp), (vm, sm) = self.traces(xloc)
-        nf, nq = self.facets.size, self.nq
-        flat = lambda a: a.reshape(nf * nq, a.shape[-1])  # noqa: E731
-        vp, sp, vm, sm = flat(vp), flat(sp), flat(vm), flat(sm)
-        Zp = np.repeat(self.Z[0], nq, axis=0)
-        Zm = np.repeat(self.Z[1], nq, axis=0)
-        Zt = np.repeat(self.Zt, nq, axis=0)
-        k = np.repeat(self.friction, nq)
-        D = z[0].reshape(-1)
-        delta = z[1].reshape(-1)
-        bonded = rm.bonded(vp, vm, sp, sm, Zp, Zm)
-        s_B = bonded[0]
-        if self.separation_traction is None:
-            S = np.zeros_like(s_B)
-        else:
-            S = self.separation_traction(self, s_B.reshape(nf, nq, 2), t).reshape(-1, 2)
-        sep = rm.separation(vp, vm, sp, sm, Zp, Zm, S)
-        slip = rm.slip(vp, vm, sp, sm, Zp, Zm, k, *bonded)
-        gamma = rm.stick_flag(s_B, k)
-        w_jump = 2.0 / Zt[:, 0] * (s_B[:, 0] - S[:, 0])  # [[v_S^1]] (eq. 11-12)
-        dn = delta / np.repeat(self.delta_scale, nq)
-        wn = w_jump / np.repeat(self.v_scale, nq)
-        if self.contact.regularized:
-            eta = rm.eta_regularized(dn, wn, self.contact.delta0, self.contact.w0)
-        else:
-            eta = rm.eta_exact(dn, wn)
-        s_star, vp_star, vm_star = rm.combine(D, eta, gamma, bonded, slip, sep)
-        return dict(s_star=s_star, vp_star=vp_star, vm_star=vm_star, vp=vp, vm=vm, sp=sp, sm=sm, s_B=s_B, S=S,
-                    eta=eta, gamma=gamma, D=D, w=wn, Zp=Zp, Zm=Zm)
+        T = self._buffers() if T is None else T
+        S0, cS = self._separation(t)
+        D = np.ascontiguousarray(z[0])
+        kernels.interface_targets(
+            xloc, self._dofs[0], self._dofs[1], self._phi[0], self._phi[1], self.n, self.Z[0], self.Z[1], self.Zt,
+            self.friction, self.delta_scale, self.v_scale, D, np.ascontiguousarray(z[1]), S0, cS,
+            self.contact.regularized, self.contact.delta0, self.contact.w0,
+            T["vp"], T["vm"], T["sp"], T["sm"], T["s_B"], T["S"], T["s_star"], T["vp_star"], T["vm_star"],
+            T["eta"], T["gamma"], T["w"])
+        T.update(D=D.reshape(-1), Zp=self._Zq[0], Zm=self._Zq[1])
+        return T
 
-    def evaluate(self, x, t, store=False, z=None):
+    def _local(self, vec, write=False):
+        """View of a ghosted vector's local form (owned + ghost values), cached per
+        vector: the solver's stage vectors are fixed, and the view shares their memory."""
+        key = (vec.handle, write)
+        hit = self._views.get(key)
+        if hit is None or hit[0] is not vec:
+            with vec.localForm() as xl:
+                hit = (vec, xl.array if write else xl.array_r)
+            self._views[key] = hit
+        return hit[1]
+
+    def evaluate(self, x, t, store=False, z=None, T=None):
         """Targets at state vector x (ghosts must be current)."""
-        with x.localForm() as xl:
-            xloc = xl.array_r
-            z = self.state if z is None else z
-            T = self.targets(xloc, z, t)
+        z = self.state if z is None else z
+        T = self.targets(self._local(x), z, t, T)
         if store:
             self.last = T
         return T
@@ -315,50 +322,22 @@ class Interface:
         """Add M^{-1} (interface flux terms) into ``out``; return the state rates."""
         t0 = time.perf_counter()
         z = self.stage_state
-        T = self.evaluate(y, t, z=z)
-        nf, nq = self.facets.size, self.nq
-        n = np.repeat(self.n, nq, axis=0)
-        # Cartesian corrections per side: momentum (s* - s), kinematics (v* - v)
-        ds_p = rm.to_global(T["s_star"] - T["sp"], n)
-        ds_m = rm.to_global(T["s_star"] - T["sm"], n)
-        dv_p = rm.to_global(T["vp_star"] - T["vp"], n)
-        dv_m = rm.to_global(T["vm_star"] - T["vm"], n)
-        wq = self.weights.reshape(-1)
-        with self._r.localForm() as rl:
-            r = rl.array
-            r[:] = 0.0
-            R = r.reshape(-1, 5)
-            for side, dsv, dvv, sgn in ((0, ds_p, dv_p, 1.0), (1, ds_m, dv_m, -1.0)):
-                # side -: outward normal -n and traction -s*: both terms change sign
-                nn = sgn * n
-                F = np.empty((nf * nq, 5))
-                F[:, 0:2] = sgn * dsv
-                F[:, 2] = dvv[:, 0] * nn[:, 0]
-                F[:, 3] = dvv[:, 1] * nn[:, 1]
-                F[:, 4] = dvv[:, 0] * nn[:, 1] + dvv[:, 1] * nn[:, 0]
-                F *= wq[:, None]
-                contrib = np.einsum("fqn,fqk->fnk", self.phi[side], F.reshape(nf, nq, 5))
-                np.add.at(R, self.cell_dofs[side].reshape(-1), contrib.reshape(-1, 5))
+        T = self.evaluate(y, t, z=z, T=self._stage_T)
+        r = self._local(self._r, write=True)
+        r[:] = 0.0
+        kernels.interface_residual(r, self._dofs[0], self._dofs[1], self._phi[0], self._phi[1], self.n,
+                                   self.weights, T["vp"], T["vm"], T["sp"], T["sm"], T["s_star"],
+                                   T["vp_star"], T["vm_star"])
         if self._ghost_flux:
             self._r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         # apply the per-cell inverse mass of the touched owned cells
-        cells = self.owned_cells
-        if cells.size:
-            dofs = compat.cell_dofs(self.solver.V)[cells]  # (nc, n)
-            idx = (dofs[:, :, None] * 5 + np.arange(5)).reshape(cells.size, -1)
-            rr = self._r.array_r[idx]
-            upd = np.einsum("cij,cj->ci", self.solver.Minv_cell[cells], rr)
-            oa = out.array
-            np.add.at(oa, idx.reshape(-1), upd.reshape(-1))
-        # state rates: damage, normal opening, slip
-        rates = np.zeros_like(z)
+        if self.owned_cells.size:
+            kernels.apply_block_inverse(out.array, self._r.array_r, self.owned_cells, self._all_dofs,
+                                        self.solver.Mref_inv, self.solver.Binv_scaled)
+        rates = np.empty_like(z)
         d = self.damage
-        s_eff = rm.effective_stress(T["s_B"], d.beta)
-        Dt = rm.target_damage(s_eff, d.s_onset, d.s_bar)
-        rates[0] = rm.damage_rate(T["D"], Dt, d.tau, d.a).reshape(nf, nq)
-        jump = T["vm_star"] - T["vp_star"]
-        rates[1] = jump[:, 0].reshape(nf, nq)
-        rates[2] = jump[:, 1].reshape(nf, nq)
+        kernels.interface_rates(rates, T["s_B"], z[0], T["vp_star"], T["vm_star"], d.beta, d.s_onset, d.s_bar,
+                                d.tau, d.a)
         self.solver.timers.add("interface kernel", time.perf_counter() - t0)
         return rates
 

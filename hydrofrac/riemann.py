@@ -1,11 +1,13 @@
 """Exact local Riemann solutions of the contact modes and their combination.
 
-This is the one implementation of model.md §2–4 used by the bulk flux
-checks, the interface kernels and the tests.  Everything is vectorised over
-points: arrays of shape ``(N, 2)`` hold per-point vectors in the local
-interface frame, column 0 = normal component (index 1 in the paper), column 1
-= tangential component (index 2).  Impedances ``Z`` are ``(N, 2)`` arrays
-``[rho c_d, rho c_s]`` per side.
+This is the one implementation of model.md §2–4 used by the interface kernels and the
+tests.  The formulas are written once, as scalar *point functions* (``*_pt``) compiled
+with numba, so that the compiled interface kernel (:mod:`hydrofrac.kernels`) calls them
+per Gauss point.  The vectorised functions below (``bonded``, ``slip``, ``combine``,
+``eta_regularized``, ...) apply the same point functions to arrays: arrays of shape
+``(N, 2)`` hold per-point vectors in the local interface frame, column 0 = normal
+component (index 1 in the paper), column 1 = tangential component (index 2).
+Impedances ``Z`` are ``(N, 2)`` arrays ``[rho c_d, rho c_s]`` per side.
 
 Sign conventions (model.md §2): ``n`` points from side + to side -, tractions
 ``s = sigma . n`` use the same ``n`` on both sides, tension is positive.
@@ -14,139 +16,285 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._jit import njit, vectorize
+
+
+# --------------------------------------------------------------------------
+# Point functions: the formulas (scalars; per component where they decouple)
+# --------------------------------------------------------------------------
+@njit
+def macaulay_pt(x):
+    """<x> = max(x, 0)."""
+    return x if x > 0.0 else 0.0
+
+
+@njit
+def sign_pt(x):
+    """sign(x) with sign(0) = 0 (as numpy)."""
+    return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
+
+
+@njit
+def bonded_pt(vp, vm, sp, sm, Zp, Zm):
+    """Bonded / stick solution of one component (eq. 5): returns (s_B, v_B)."""
+    Zsum = Zp + Zm
+    s = (Zm * sp + Zp * sm) / Zsum + Zp * Zm / Zsum * (vm - vp)
+    v = (Zp * vp + Zm * vm + sm - sp) / Zsum
+    return s, v
+
+
+@njit
+def separation_pt(vp, vm, sp, sm, Zp, Zm, S):
+    """Prescribed traction S on one component (eq. 4): returns (S, v+, v-), each side's
+    velocity from its own characteristic."""
+    return S, vp + (S - sp) / Zp, vm - (S - sm) / Zm
+
+
+@njit
+def friction_traction_pt(k, sB_n, sB_t):
+    """Coulomb slip traction k <-s_B^1> sign(s_B^2) (slip along the stick predictor)."""
+    return k * macaulay_pt(-sB_n) * sign_pt(sB_t)
+
+
+@njit
+def stick_pt(k, sB_n, sB_t):
+    """gamma = 1 (stick) if |s_B^2| <= k <-s_B^1>, else 0 (slip)."""
+    return 1.0 if abs(sB_t) <= k * macaulay_pt(-sB_n) else 0.0
+
+
+@njit
+def mode_weights_pt(D, eta, gamma):
+    """Fractions (a_B, a_SL, a_S) of bonded(+stick), slip and separation (eqs. 6-7)."""
+    return 1.0 - D + D * eta * gamma, D * eta * (1.0 - gamma), D * (1.0 - eta)
+
+
+@njit
+def weighted_pt(aB, aSL, aS, xB, xSL, xS):
+    """The damage-model combination of one target value (eqs. 6-7)."""
+    return aB * xB + aSL * xSL + aS * xS
+
+
+@njit
+def reduced_impedance_pt(Zp, Zm):
+    """Z~ = 2 Z+ Z- / (Z+ + Z-) (eq. 12)."""
+    return 2.0 * Zp * Zm / (Zp + Zm)
+
+
+@njit
+def effective_stress_pt(sB_n, sB_t, beta):
+    """s_eff = sqrt(<s_B^1>^2 + (beta |s_B^2|)^2)."""
+    a = macaulay_pt(sB_n)
+    b = beta * sB_t
+    return np.sqrt(a * a + b * b)
+
+
+@njit
+def target_damage_pt(s_eff, s_onset, s_bar):
+    """D_t: 0 below the onset, linear up to the strength s_bar, then 1."""
+    x = (s_eff - s_onset) / (s_bar - s_onset)
+    return min(max(x, 0.0), 1.0)
+
+
+@njit
+def damage_rate_pt(D, D_t, tau, a):
+    """dD/dt = (1 - exp(-a <D_t - D>)) / tau for D < 1, else 0 (eq. 8)."""
+    if D >= 1.0:
+        return 0.0
+    return (1.0 - np.exp(-a * macaulay_pt(D_t - D))) / tau
+
+
+@njit
+def smoothstep_pt(x):
+    x = min(max(x, 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+@njit
+def eta_regularized_pt(delta_n, w_n, delta0, w0):
+    """Regularised contact fraction eta = r(delta') q(w') (model.md §4, fig. 4).
+
+    delta_n : normalised normal opening delta/delta~ (positive = open)
+    w_n : normalised separation-velocity jump [[v_S^1]]/v~
+    delta0 : maximum penetration delta'_0 < 0;  w0 : velocity width w'_0 > 0
+    """
+    return smoothstep_pt(delta_n / delta0) * (1.0 - smoothstep_pt(w_n / w0))
+
+
+@njit
+def eta_exact_pt(delta_n, w_n):
+    """Unregularised map (fig. 3): contact only when closed and pressed together."""
+    return 1.0 if (delta_n <= 0.0 and w_n < 0.0) else 0.0
+
+
+@njit
+def interface_point(vp_n, vp_t, vm_n, vm_t, sp_n, sp_t, sm_n, sm_t, Zp_n, Zp_t, Zm_n, Zm_t,
+                    k, D, eta, S_n, S_t):
+    """The combined target values at one point (eqs. 6-7): bonded(+stick), Coulomb slip
+    and separation with traction S, weighted by D, eta and the stick flag.
+
+    Returns (s*_n, s*_t, v*+_n, v*+_t, v*-_n, v*-_t, gamma)."""
+    sB_n, vB_n = bonded_pt(vp_n, vm_n, sp_n, sm_n, Zp_n, Zm_n)
+    sB_t, vB_t = bonded_pt(vp_t, vm_t, sp_t, sm_t, Zp_t, Zm_t)
+    _, vpS_n, vmS_n = separation_pt(vp_n, vm_n, sp_n, sm_n, Zp_n, Zm_n, S_n)
+    _, vpS_t, vmS_t = separation_pt(vp_t, vm_t, sp_t, sm_t, Zp_t, Zm_t, S_t)
+    # slip: normal = bonded, tangential = prescribed friction traction
+    sSL_t, vpSL_t, vmSL_t = separation_pt(vp_t, vm_t, sp_t, sm_t, Zp_t, Zm_t, friction_traction_pt(k, sB_n, sB_t))
+    gamma = stick_pt(k, sB_n, sB_t)
+    aB, aSL, aS = mode_weights_pt(D, eta, gamma)
+    return (weighted_pt(aB, aSL, aS, sB_n, sB_n, S_n), weighted_pt(aB, aSL, aS, sB_t, sSL_t, S_t),
+            weighted_pt(aB, aSL, aS, vB_n, vB_n, vpS_n), weighted_pt(aB, aSL, aS, vB_t, vpSL_t, vpS_t),
+            weighted_pt(aB, aSL, aS, vB_n, vB_n, vmS_n), weighted_pt(aB, aSL, aS, vB_t, vmSL_t, vmS_t), gamma)
+
+
+# --------------------------------------------------------------------------
+# Vectorised forms of the point functions (arrays of points)
+# --------------------------------------------------------------------------
+def _pairs(*arrays):
+    """Broadcast to (N, 2) float arrays."""
+    out = np.broadcast_arrays(*[np.asarray(a, dtype=float) for a in arrays])
+    return [np.ascontiguousarray(a).reshape(-1, 2) for a in out]
+
+
+def _points(n, *arrays):
+    """Broadcast per-point scalars to (n,) float arrays."""
+    return [np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=float), (n,))) for a in arrays]
+
+
+@njit
+def _bonded_loop(vp, vm, sp, sm, Zp, Zm, s, v):
+    for i in range(vp.shape[0]):
+        for c in range(2):
+            s[i, c], v[i, c] = bonded_pt(vp[i, c], vm[i, c], sp[i, c], sm[i, c], Zp[i, c], Zm[i, c])
+
+
+@njit
+def _separation_loop(vp, vm, sp, sm, Zp, Zm, S, s, v_p, v_m):
+    for i in range(vp.shape[0]):
+        for c in range(2):
+            s[i, c], v_p[i, c], v_m[i, c] = separation_pt(vp[i, c], vm[i, c], sp[i, c], sm[i, c],
+                                                          Zp[i, c], Zm[i, c], S[i, c])
+
 
 def macaulay(x):
     """<x> = max(x, 0)."""
     return np.maximum(x, 0.0)
 
 
-# --------------------------------------------------------------------------
-# Single-mode Riemann solutions (model.md §2)
-# --------------------------------------------------------------------------
 def bonded(vp, vm, sp, sm, Zp, Zm):
     """Bonded / contact-stick solution (eq. 5): ``v+ = v- = v``.
 
-    Returns
-    -------
-    s_B, v_B : target traction and the common target velocity.
-    """
-    Zsum = Zp + Zm
-    v = (Zp * vp + Zm * vm + sm - sp) / Zsum
-    s = (Zm * sp + Zp * sm) / Zsum + Zp * Zm / Zsum * (vm - vp)
+    Returns ``s_B, v_B``: target traction and the common target velocity, (N, 2)."""
+    args = _pairs(vp, vm, sp, sm, Zp, Zm)
+    s, v = np.empty_like(args[0]), np.empty_like(args[0])
+    _bonded_loop(*args, s, v)
     return s, v
 
 
 def separation(vp, vm, sp, sm, Zp, Zm, S):
-    """Separation with prescribed target traction ``S`` (eq. 4).
-
-    Returns
-    -------
-    s_S, v_S_plus, v_S_minus
-    """
-    S = np.broadcast_to(S, np.shape(sp))
-    return S.copy(), vp + (S - sp) / Zp, vm - (S - sm) / Zm
+    """Separation with prescribed target traction ``S`` (eq. 4): ``s_S, v_S+, v_S-``."""
+    args = _pairs(vp, vm, sp, sm, Zp, Zm, S)
+    s, v_p, v_m = (np.empty_like(args[0]) for _ in range(3))
+    _separation_loop(*args, s, v_p, v_m)
+    return s, v_p, v_m
 
 
 def slip(vp, vm, sp, sm, Zp, Zm, k, s_B=None, v_B=None):
-    """Contact-slip with Coulomb friction ``k``.
-
-    Normal component = bonded; tangential traction
-    ``k <-s_B^1> sign(s_B^2)`` (slip direction = stick-predictor direction);
-    tangential velocities follow from each side's characteristic.
-    """
+    """Contact-slip with Coulomb friction ``k``: normal component = bonded; tangential
+    traction ``k <-s_B^1> sign(s_B^2)`` (slip along the stick predictor), tangential
+    velocities from each side's characteristic."""
     if s_B is None:
         s_B, v_B = bonded(vp, vm, sp, sm, Zp, Zm)
-    k = np.asarray(k, dtype=float)
-    s = np.empty_like(s_B)
-    s[:, 0] = s_B[:, 0]
-    s[:, 1] = k * macaulay(-s_B[:, 0]) * np.sign(s_B[:, 1])
-    v_p = np.empty_like(s_B)
-    v_m = np.empty_like(s_B)
-    v_p[:, 0] = v_B[:, 0]
-    v_m[:, 0] = v_B[:, 0]
-    v_p[:, 1] = vp[:, 1] + (s[:, 1] - sp[:, 1]) / Zp[:, 1]
-    v_m[:, 1] = vm[:, 1] - (s[:, 1] - sm[:, 1]) / Zm[:, 1]
-    return s, v_p, v_m
+    vp, vm, sp, sm, Zp, Zm, s_B, v_B = _pairs(vp, vm, sp, sm, Zp, Zm, s_B, v_B)
+    k, = _points(s_B.shape[0], k)
+    S_t = _friction_traction_u(k, s_B[:, 0], s_B[:, 1])
+    s_t, vp_t, vm_t = separation(vp[:, 1], vm[:, 1], sp[:, 1], sm[:, 1], Zp[:, 1], Zm[:, 1], S_t)
+    s = np.stack([s_B[:, 0], s_t.reshape(-1)], axis=1)
+    return s, np.stack([v_B[:, 0], vp_t.reshape(-1)], axis=1), np.stack([v_B[:, 0], vm_t.reshape(-1)], axis=1)
 
 
 def stick_flag(s_B, k):
     """gamma = 1 (stick) if ``|s_B^2| <= k <-s_B^1>``, else 0 (slip)."""
-    return (np.abs(s_B[:, 1]) <= np.asarray(k) * macaulay(-s_B[:, 0])).astype(float)
+    s_B = np.asarray(s_B, dtype=float)
+    return _stick_u(k, s_B[:, 0], s_B[:, 1])
 
 
 def reduced_impedance(Zp, Zm):
     """Z~ = 2 Z+ Z- / (Z+ + Z-) (eq. 12), per component."""
-    return 2.0 * Zp * Zm / (Zp + Zm)
+    return _reduced_impedance_u(Zp, Zm)
 
 
-# --------------------------------------------------------------------------
-# Combination: the interfacial damage model (eqs. 6-7)
-# --------------------------------------------------------------------------
 def mode_weights(D, eta, gamma):
     """Fractions (a_B, a_SL, a_S) of bonded(+stick), slip and separation."""
-    a_B = 1.0 - D + D * eta * gamma
-    a_SL = D * eta * (1.0 - gamma)
-    a_S = D * (1.0 - eta)
-    return a_B, a_SL, a_S
+    D, eta, gamma = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (D, eta, gamma)))
+    return _aB_u(D, eta, gamma), _aSL_u(D, eta, gamma), _aS_u(D, eta, gamma)
 
 
 def combine(D, eta, gamma, bonded_sol, slip_sol, sep_sol):
     """Weighted target values ``s*``, ``v*+``, ``v*-`` (eqs. 6-7)."""
-    a_B, a_SL, a_S = (a[:, None] for a in mode_weights(D, eta, gamma))
+    a = [x[:, None] for x in mode_weights(D, eta, gamma)]
     s_B, v_B = bonded_sol
     s_SL, vp_SL, vm_SL = slip_sol
     s_S, vp_S, vm_S = sep_sol
-    s = a_B * s_B + a_SL * s_SL + a_S * s_S
-    vp = a_B * v_B + a_SL * vp_SL + a_S * vp_S
-    vm = a_B * v_B + a_SL * vm_SL + a_S * vm_S
-    return s, vp, vm
+    return (_weighted_u(*a, s_B, s_SL, s_S), _weighted_u(*a, v_B, vp_SL, vp_S),
+            _weighted_u(*a, v_B, vm_SL, vm_S))
 
 
-# --------------------------------------------------------------------------
-# Damage law (eqs. 8-10)
-# --------------------------------------------------------------------------
 def effective_stress(s_B, beta):
     """s_eff = sqrt(<s_B^1>^2 + (beta |s_B^2|)^2)."""
-    return np.sqrt(macaulay(s_B[:, 0]) ** 2 + (beta * s_B[:, 1]) ** 2)
+    s_B = np.asarray(s_B, dtype=float)
+    return _effective_stress_u(s_B[:, 0], s_B[:, 1], beta)
 
 
 def target_damage(s_eff, s_onset, s_bar):
     """D_t: 0 below the onset, linear up to the strength ``s_bar``, then 1."""
-    return np.clip((s_eff - s_onset) / (s_bar - s_onset), 0.0, 1.0)
+    return _target_damage_u(s_eff, s_onset, s_bar)
 
 
 def damage_rate(D, D_t, tau, a):
     """dD/dt = (1 - exp(-a <D_t - D>)) / tau for D < 1, else 0 (eq. 8)."""
-    rate = (1.0 - np.exp(-a * macaulay(D_t - D))) / tau
-    return np.where(D < 1.0, rate, 0.0)
-
-
-# --------------------------------------------------------------------------
-# Contact fraction eta in the (delta', w') phase space (model.md §4)
-# --------------------------------------------------------------------------
-def _smoothstep(x):
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
+    return _damage_rate_u(D, D_t, tau, a)
 
 
 def eta_regularized(delta_n, w_n, delta0, w0):
-    """Regularised contact fraction ``eta = r(delta') q(w')`` (fig. 4).
-
-    Parameters
-    ----------
-    delta_n : normalised normal opening delta/delta~ (positive = open)
-    w_n : normalised separation-velocity jump [[v_S^1]]/v~
-    delta0 : maximum penetration delta'_0 < 0
-    w0 : velocity width w'_0 > 0
-    """
-    r = _smoothstep(np.asarray(delta_n) / delta0)  # 0 at delta'=0, 1 at delta'=delta0
-    q = 1.0 - _smoothstep(np.asarray(w_n) / w0)
-    return r * q
+    """Regularised contact fraction ``eta = r(delta') q(w')`` (fig. 4), broadcasting;
+    see :func:`eta_regularized_pt`."""
+    return _eta_regularized_u(delta_n, w_n, delta0, w0)
 
 
 def eta_exact(delta_n, w_n):
     """Unregularised map (fig. 3): contact only when closed and pressed together."""
-    return ((np.asarray(delta_n) <= 0.0) & (np.asarray(w_n) < 0.0)).astype(float)
+    return _eta_exact_u(delta_n, w_n)
+
+
+@njit
+def _aB_pt(D, eta, gamma):
+    return mode_weights_pt(D, eta, gamma)[0]
+
+
+@njit
+def _aSL_pt(D, eta, gamma):
+    return mode_weights_pt(D, eta, gamma)[1]
+
+
+@njit
+def _aS_pt(D, eta, gamma):
+    return mode_weights_pt(D, eta, gamma)[2]
+
+
+_F2, _F3, _F4 = ("float64(float64, float64)",), ("float64(float64, float64, float64)",), \
+    ("float64(float64, float64, float64, float64)",)
+_friction_traction_u = vectorize(friction_traction_pt, _F3)
+_stick_u = vectorize(stick_pt, _F3)
+_reduced_impedance_u = vectorize(reduced_impedance_pt, _F2)
+_aB_u = vectorize(_aB_pt, _F3)
+_aSL_u = vectorize(_aSL_pt, _F3)
+_aS_u = vectorize(_aS_pt, _F3)
+_weighted_u = vectorize(weighted_pt, ("float64(float64, float64, float64, float64, float64, float64)",))
+_effective_stress_u = vectorize(effective_stress_pt, _F3)
+_target_damage_u = vectorize(target_damage_pt, _F3)
+_damage_rate_u = vectorize(damage_rate_pt, _F4)
+_eta_regularized_u = vectorize(eta_regularized_pt, _F4)
+_eta_exact_u = vectorize(eta_exact_pt, _F2)
 
 
 # --------------------------------------------------------------------------

@@ -270,6 +270,7 @@ def run(solver: Solver, options: RunOptions, name: str = "solution",
         "time_split_s": {k: comm.allreduce(v, op=compat.MPI.MAX) for k, v in solver.timers.t.items()},
         "output": {"paraview": str(series.pvd_path), "history": str(history_path), "checkpoint": str(ckpt.dir)},
     })
+    summary["cost_us"] = unit_costs(solver, steps_run)
     if accuracy is not None:
         summary["accuracy"] = accuracy(solver)
     if comm.rank == 0:
@@ -277,6 +278,24 @@ def run(solver: Solver, options: RunOptions, name: str = "solution",
             json.dump(summary, f, indent=2, default=float)
         print_summary(summary)
     return summary
+
+
+def unit_costs(solver, steps: int) -> Dict[str, float]:
+    """Wall time per unit of work, summed over ranks [µs]: the bulk operator per
+    cell*stage and the interface kernel per crack facet*stage (issue 3's comparison)."""
+    comm = solver.comm
+    stages = solver.num_stages * max(steps, 1)
+    t = solver.timers.t
+    cells = compat.num_cells_local(solver.mesh)
+    facets = sum(e.facets.size for e in solver.extensions if hasattr(e, "facets"))
+    loc = np.array([t.get("bulk operator", 0.0), cells, t.get("interface kernel", 0.0), facets], dtype=float)
+    tot = np.zeros(4)
+    comm.Allreduce(loc, tot, op=compat.MPI.SUM)
+    out = {"bulk_per_cell_stage": 1e6 * tot[0] / max(tot[1] * stages, 1)}
+    if tot[3] > 0:
+        out["interface_per_facet_stage"] = 1e6 * tot[2] / (tot[3] * stages)
+        out["crack_facets"] = int(tot[3])
+    return out
 
 
 def print_summary(s: Dict, file=sys.stdout):
@@ -294,6 +313,13 @@ def print_summary(s: Dict, file=sys.stdout):
         f"  balance     error {e['balance_error']:.3g} J/m ({e['balance_error_relative']:.2e} relative)",
         "  time split  " + ", ".join(f"{k} {v:.2f} s" for k, v in s["time_split_s"].items()),
     ]
+    c = s.get("cost_us")
+    if c:
+        line = f"  unit cost   bulk operator {c['bulk_per_cell_stage']:.3g} us per cell*stage"
+        if "interface_per_facet_stage" in c:
+            line += (f", interface kernel {c['interface_per_facet_stage']:.3g} us per crack facet*stage "
+                     f"({c['crack_facets']} crack facets)")
+        lines.append(line)
     for k, v in s.get("accuracy", {}).items():
         lines.append(f"  accuracy    {k} = {v:.4g}" if isinstance(v, float) else f"  accuracy    {k} = {v}")
     lines.append(f"  output      {s['output']['paraview']} (ParaView), {s['output']['history']}")

@@ -326,7 +326,7 @@ class Solver:
             a += ef.boundary_flux(U, W, rho, lam, mu, n, ("traction", "traction"), (0.0, 0.0), ds(free_tag))
         K = compat.assemble_matrix(compat.form(a))
 
-        self.Minv, self.Minv_cell = self._inverse_mass()
+        self.Minv = self._inverse_mass()
         self.M = _to_baij(self._mass_matrix(), ef.NCOMP)
         self.A = _to_baij(self.Minv.matMult(K), ef.NCOMP)
         K.destroy()
@@ -433,11 +433,17 @@ class Solver:
         B[:, 2, 3] = B[:, 3, 2] = -c * kappa
         B[:, 4, 4] = 2 * c
         Binv = np.linalg.inv(B)
-        blocks = np.einsum("ij,cab->ciajb", Mref_inv, Binv) / np.abs(self.geometry.detJ)[:, None, None, None, None]
+        absdet = np.abs(self.geometry.detJ)
+        # factors of the per-cell blocks (all cells incl. ghosts), for cell-local kernels:
+        # M_c^{-1} = Mref_inv kron Binv_scaled[c]
+        self.Mref_inv = np.ascontiguousarray(Mref_inv)
+        self.Binv_scaled = np.ascontiguousarray(Binv / absdet[:, None, None])
         nd = Mref_inv.shape[0] * 5
-        blocks = blocks.reshape(-1, nd, nd)
-        self._mass_blocks = np.linalg.inv(blocks[:nloc])
-        return self._block_diag_matrix(blocks[:nloc]), blocks
+        Mref = self.ref.mass()
+        self._mass_blocks = (np.einsum("ij,cab->ciajb", Mref, B[:nloc]) * absdet[:nloc, None, None, None, None]
+                             ).reshape(-1, nd, nd)
+        blocks = np.einsum("ij,cab->ciajb", Mref_inv, self.Binv_scaled[:nloc]).reshape(-1, nd, nd)
+        return self._block_diag_matrix(blocks)
 
     def _mass_matrix(self):
         return self._block_diag_matrix(self._mass_blocks)

@@ -186,8 +186,7 @@ def confined_crack(p, tau=3e-6, nx=20, L=0.1):
                     bcs=[Symmetry(SIDES), Traction(LEFT, stress=SIGMA0), Traction(RIGHT, stress=SIGMA0)],
                     crack_facets=crack_facet_indices(mesh, tags, cracks))
     iface = Interface(solver, tags, cracks, damage=DamageParams(tau=tau))
-    iface.separation_traction = lambda _iface, s_B, t: np.stack([np.full(s_B.shape[:2], -p),
-                                                                 np.zeros(s_B.shape[:2])], axis=-1)
+    iface.separation_traction = lambda t: (np.array([-p, 0.0]), None)  # S = (-p, 0)
     return solver, iface
 
 
@@ -237,8 +236,7 @@ def test_contact_separation_transition_continuous():
         ps = P0 + np.linspace(-2 * band, 3 * band, num)
         rates = []
         for p in ps:
-            iface.separation_traction = lambda _i, s_B, t, p=p: np.stack(
-                [np.full(s_B.shape[:2], -p), np.zeros(s_B.shape[:2])], axis=-1)
+            iface.separation_traction = lambda t, p=p: (np.array([-p, 0.0]), None)
             iface.stage_state = iface.state.copy()
             r = solver.rhs(solver.x, 0.0, out)[0]
             rates.append(comm.allreduce(float(r[1].max()) if r[1].size else -np.inf, op=MPI.MAX))

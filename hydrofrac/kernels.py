@@ -1,0 +1,161 @@
+"""Compiled (numba) kernels of the crack interface: one loop over crack facets and
+their Gauss points per Runge-Kutta stage.
+
+* :func:`interface_targets` evaluates both sides' traces, the bonded solution, the
+  separation traction, eta, and the combined targets via
+  :func:`hydrofrac.riemann.interface_point` (the one implementation of the formulas);
+* :func:`interface_residual` integrates the flux corrections
+  ``(s* - s).w + (v* - v).(tau n)`` of both sides into a residual vector;
+* :func:`interface_rates` gives the state rates (damage, opening, slip);
+* :func:`apply_block_inverse` multiplies the residual of the touched cells by their
+  closed-form inverse mass blocks.
+
+Layouts: the field vector holds 5 values (v_x, v_y, s_xx, s_yy, s_xy) per dof block;
+``dofs`` (nf, nb) are block indices of a facet's cell on one side, ``phi`` (nf, nq, nb)
+that cell's basis at the facet's Gauss points.  Local components: 0 = normal, 1 = tangent
+``t = (-n_y, n_x)``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ._jit import njit
+from .riemann import (bonded_pt, damage_rate_pt, effective_stress_pt, eta_exact_pt, eta_regularized_pt,
+                      interface_point, macaulay_pt, target_damage_pt)
+
+
+@njit
+def _trace(X, dofs, phi, f, q, nx, ny):
+    """(v_n, v_t, s_n, s_t) of one side at Gauss point q of facet f."""
+    u0 = u1 = u2 = u3 = u4 = 0.0
+    for j in range(phi.shape[2]):
+        a = phi[f, q, j]
+        b = 5 * dofs[f, j]
+        u0 += a * X[b]
+        u1 += a * X[b + 1]
+        u2 += a * X[b + 2]
+        u3 += a * X[b + 3]
+        u4 += a * X[b + 4]
+    sx = u2 * nx + u4 * ny
+    sy = u4 * nx + u3 * ny
+    return u0 * nx + u1 * ny, -u0 * ny + u1 * nx, sx * nx + sy * ny, -sx * ny + sy * nx
+
+
+@njit
+def interface_targets(X, dofs_p, dofs_m, phi_p, phi_m, normal, Zp, Zm, Zt, k, delta_scale, v_scale,
+                      D, delta, S0, cS, regularized, delta0, w0,
+                      vp, vm, sp, sm, sB, S, s_star, vp_star, vm_star, eta, gamma, wn):
+    """Targets at every Gauss point; outputs (last 12 arguments) are (nf*nq, 2) or (nf*nq,).
+
+    The separation traction is ``S = S0 + cS <-s_B^1> e_n`` (the hydraulic law, eq. 16,
+    is of this form; S0 = cS = 0 for traction-free cracks)."""
+    nf, nq = phi_p.shape[0], phi_p.shape[1]
+    for f in range(nf):
+        nx, ny = normal[f, 0], normal[f, 1]
+        for q in range(nq):
+            i = f * nq + q
+            vpn, vpt, spn, spt = _trace(X, dofs_p, phi_p, f, q, nx, ny)
+            vmn, vmt, smn, smt = _trace(X, dofs_m, phi_m, f, q, nx, ny)
+            sBn, _ = bonded_pt(vpn, vmn, spn, smn, Zp[f, 0], Zm[f, 0])
+            sBt, _ = bonded_pt(vpt, vmt, spt, smt, Zp[f, 1], Zm[f, 1])
+            Sn = S0[f, q, 0] + cS[f, q] * macaulay_pt(-sBn)
+            St = S0[f, q, 1]
+            w = 2.0 / Zt[f, 0] * (sBn - Sn) / v_scale[f]  # [[v_S^1]] / v~ (eqs. 11-12)
+            dn = delta[f, q] / delta_scale[f]
+            e = eta_regularized_pt(dn, w, delta0, w0) if regularized else eta_exact_pt(dn, w)
+            r = interface_point(vpn, vpt, vmn, vmt, spn, spt, smn, smt, Zp[f, 0], Zp[f, 1], Zm[f, 0], Zm[f, 1],
+                                k[f], D[f, q], e, Sn, St)
+            vp[i, 0], vp[i, 1], vm[i, 0], vm[i, 1] = vpn, vpt, vmn, vmt
+            sp[i, 0], sp[i, 1], sm[i, 0], sm[i, 1] = spn, spt, smn, smt
+            sB[i, 0], sB[i, 1], S[i, 0], S[i, 1] = sBn, sBt, Sn, St
+            s_star[i, 0], s_star[i, 1] = r[0], r[1]
+            vp_star[i, 0], vp_star[i, 1] = r[2], r[3]
+            vm_star[i, 0], vm_star[i, 1] = r[4], r[5]
+            gamma[i] = r[6]
+            eta[i] = e
+            wn[i] = w
+
+
+@njit
+def _scatter(R, dofs, phi, f, q, F0, F1, F2, F3, F4):
+    for j in range(phi.shape[2]):
+        a = phi[f, q, j]
+        b = 5 * dofs[f, j]
+        R[b] += a * F0
+        R[b + 1] += a * F1
+        R[b + 2] += a * F2
+        R[b + 3] += a * F3
+        R[b + 4] += a * F4
+
+
+@njit
+def interface_residual(R, dofs_p, dofs_m, phi_p, phi_m, normal, weights, vp, vm, sp, sm, s_star, vp_star,
+                       vm_star):
+    """R += facet integrals of the flux corrections of both sides: momentum
+    ``(s* - s) . w`` and kinematics ``(v* - v) . (tau n)`` with each side's outward normal
+    (side +: n, side -: -n; the side - traction is -s*, so both terms change sign)."""
+    nf, nq = phi_p.shape[0], phi_p.shape[1]
+    for f in range(nf):
+        nx, ny = normal[f, 0], normal[f, 1]
+        for q in range(nq):
+            i = f * nq + q
+            w = weights[f, q]
+            for side in range(2):
+                if side == 0:
+                    sgn, dsn, dst = 1.0, s_star[i, 0] - sp[i, 0], s_star[i, 1] - sp[i, 1]
+                    dvn, dvt = vp_star[i, 0] - vp[i, 0], vp_star[i, 1] - vp[i, 1]
+                else:
+                    sgn, dsn, dst = -1.0, s_star[i, 0] - sm[i, 0], s_star[i, 1] - sm[i, 1]
+                    dvn, dvt = vm_star[i, 0] - vm[i, 0], vm_star[i, 1] - vm[i, 1]
+                dsx, dsy = dsn * nx - dst * ny, dsn * ny + dst * nx  # to Cartesian
+                dvx, dvy = dvn * nx - dvt * ny, dvn * ny + dvt * nx
+                mx, my = sgn * nx, sgn * ny
+                F0, F1 = w * sgn * dsx, w * sgn * dsy
+                F2, F3, F4 = w * dvx * mx, w * dvy * my, w * (dvx * my + dvy * mx)
+                if side == 0:
+                    _scatter(R, dofs_p, phi_p, f, q, F0, F1, F2, F3, F4)
+                else:
+                    _scatter(R, dofs_m, phi_m, f, q, F0, F1, F2, F3, F4)
+
+
+@njit
+def interface_rates(rates, sB, D, vp_star, vm_star, beta, s_onset, s_bar, tau, a):
+    """State rates per Gauss point: damage (eqs. 8-10), normal opening and slip from
+    the target velocity jump [[v*]] = v*- - v*+.  ``rates`` is (3, nf, nq)."""
+    nf, nq = rates.shape[1], rates.shape[2]
+    for f in range(nf):
+        for q in range(nq):
+            i = f * nq + q
+            Dt = target_damage_pt(effective_stress_pt(sB[i, 0], sB[i, 1], beta), s_onset, s_bar)
+            rates[0, f, q] = damage_rate_pt(D[f, q], Dt, tau, a)
+            rates[1, f, q] = vm_star[i, 0] - vp_star[i, 0]
+            rates[2, f, q] = vm_star[i, 1] - vp_star[i, 1]
+
+
+@njit
+def apply_block_inverse(out, r, cells, dofs, Mref_inv, Binv):
+    """out[idx] += M_c^{-1} r[idx] for each cell c of ``cells`` (idx = its 5 nb values,
+    block-major: 5 dofs[c, j] + component), with the closed-form factorisation
+    M_c^{-1} = Mref_inv kron Binv[c] (affine cells: 5 nb^2 + 25 nb flops per cell)."""
+    nb = dofs.shape[1]
+    loc = np.empty((nb, 5))
+    tmp = np.empty((nb, 5))
+    for c in cells:
+        for b in range(nb):
+            base = 5 * dofs[c, b]
+            for k in range(5):
+                loc[b, k] = r[base + k]
+        tmp[:] = 0.0
+        for a in range(nb):
+            for b in range(nb):
+                m = Mref_inv[a, b]
+                for k in range(5):
+                    tmp[a, k] += m * loc[b, k]
+        B = Binv[c]
+        for a in range(nb):
+            base = 5 * dofs[c, a]
+            for k in range(5):
+                acc = 0.0
+                for l in range(5):
+                    acc += B[k, l] * tmp[a, l]
+                out[base + k] += acc
