@@ -94,14 +94,23 @@ class Crack:
     damage : initial damage, 1 for a pre-existing crack, 0 for an intact interface
     opening : initial normal opening delta [m]; None = closed: delta'_0 * delta~
         (in contact, eta = 1) for D > 0, 0 for intact interfaces
+    tau : this crack's relaxation time tau~ [s]; None = the interface's
+        ``DamageParams.tau``.  It sets the crack's damage rate and its fracture
+        scale delta~ = tau~ s_bar / Z~ (eq. 13), hence its maximum penetration
+        |delta'_0| delta~ and pressure-factor aperture delta_bar' delta~ (eq. 15).
+        A pre-existing fracture (D = 1) no longer damages, so there tau~ only sets
+        these length scales.
     """
 
     tag: int
     friction: float = 0.6
     damage: float = 1.0
     opening: Optional[float] = None
+    tau: Optional[float] = None
 
     def __post_init__(self):
+        if self.tau is not None and not self.tau > 0:
+            raise ValueError(f"crack {self.tag}: tau (relaxation time) must be > 0 s; got {self.tau}")
         if not self.friction >= 0:
             raise ValueError(f"crack {self.tag}: friction k must be >= 0; got {self.friction}")
         if not 0 <= self.damage <= 1:
@@ -224,7 +233,9 @@ class Interface:
         self.Z = [np.stack([rho[cells[:, s_]] * cd[cells[:, s_]], rho[cells[:, s_]] * cs[cells[:, s_]]], axis=1)
                   for s_ in range(2)]
         self.Zt = rm.reduced_impedance(self.Z[0], self.Z[1])  # Z~ per component
-        self.delta_scale = damage.tau * damage.s_bar / self.Zt[:, 0]  # delta~ (eq. 13)
+        self.tau = np.array([damage.tau if crack_by_tag[t].tau is None else crack_by_tag[t].tau
+                             for t in self.crack_tag], dtype=float)  # tau~ per facet
+        self.delta_scale = self.tau * damage.s_bar / self.Zt[:, 0]  # delta~ (eq. 13)
         self.v_scale = damage.s_bar / self.Zt[:, 0]  # v~
 
         self._Zq = [np.repeat(Z_, self.nq, axis=0) for Z_ in self.Z]  # per Gauss point, for the energy terms
@@ -337,7 +348,7 @@ class Interface:
         rates = np.empty_like(z)
         d = self.damage
         kernels.interface_rates(rates, T["s_B"], z[0], T["vp_star"], T["vm_star"], d.beta, d.s_onset, d.s_bar,
-                                d.tau, d.a)
+                                self.tau, d.a)
         self.solver.timers.add("interface kernel", time.perf_counter() - t0)
         return rates
 

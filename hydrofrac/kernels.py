@@ -121,13 +121,13 @@ def interface_residual(R, dofs_p, dofs_m, phi_p, phi_m, normal, weights, vp, vm,
 @njit
 def interface_rates(rates, sB, D, vp_star, vm_star, beta, s_onset, s_bar, tau, a):
     """State rates per Gauss point: damage (eqs. 8-10), normal opening and slip from
-    the target velocity jump [[v*]] = v*- - v*+.  ``rates`` is (3, nf, nq)."""
+    the target velocity jump [[v*]] = v*- - v*+.  ``rates`` is (3, nf, nq), ``tau`` per facet."""
     nf, nq = rates.shape[1], rates.shape[2]
     for f in range(nf):
         for q in range(nq):
             i = f * nq + q
             Dt = target_damage_pt(effective_stress_pt(sB[i, 0], sB[i, 1], beta), s_onset, s_bar)
-            rates[0, f, q] = damage_rate_pt(D[f, q], Dt, tau, a)
+            rates[0, f, q] = damage_rate_pt(D[f, q], Dt, tau[f], a)
             rates[1, f, q] = vm_star[i, 0] - vp_star[i, 0]
             rates[2, f, q] = vm_star[i, 1] - vp_star[i, 1]
 

@@ -41,7 +41,7 @@ def build(comm=MPI.COMM_WORLD, domain: Domain = Domain(), perforations: Sequence
     fm = fracture_mesh(comm, domain, perforations=perforations, fractures=fractures, paths=paths, out=out)
     sigma0 = -p0 * np.eye(2)
     cracks = ([Crack(t, friction=0.0, damage=1.0, opening=p.width) for t, p in zip(fm.perforations, perforations)]
-              + [Crack(t, friction=f.friction, damage=1.0) for t, f in zip(fm.naturals, fractures)]
+              + [Crack(t, friction=f.friction, damage=1.0, tau=f.tau) for t, f in zip(fm.naturals, fractures)]
               + [Crack(t, friction=path_friction, damage=0.0) for t in fm.paths])
     solver = Solver(fm.mesh, degree, material, facet_tags=fm.facet_tags, sigma0=sigma0,
                     bcs=[Traction(WELLBORE, pressure=pressure), Absorbing(OUTER, stress=sigma0)],

@@ -48,12 +48,15 @@ class Perforation:
 
 @dataclass(frozen=True)
 class Fracture:
-    """A straight natural fracture through ``center`` at ``angle`` [deg] (0 = along x)."""
+    """A straight natural fracture through ``center`` at ``angle`` [deg] (0 = along x),
+    with Coulomb friction and its own relaxation time ``tau`` [s] (None = the scenario's
+    damage tau~; see :class:`hydrofrac.interface.Crack`)."""
 
     center: Tuple[float, float]
     angle: float
     length: float
     friction: float = 0.6
+    tau: Optional[float] = None
 
 
 @dataclass(frozen=True)
