@@ -158,17 +158,25 @@ class Solver:
     relaxation : dynamic-relaxation damping c [1/s] (rho dv/dt = div sigma - c rho v),
         0 for physical dynamics; only to reach static states quickly (e.g. the
         Sneddon verification).  Its dissipation is reported separately.
+    operator : "matfree" (default: cell-local compiled kernels for the volume terms and
+        the interior upwind flux, :mod:`hydrofrac.matfree`, plus an assembled operator on
+        the boundary cells) or "assembled" (the whole A = M^{-1} K as one PETSc BAIJ
+        matrix, assembled from the UFL forms).  Both give the same results to round-off.
     """
 
     def __init__(self, mesh, degree: int, materials: Union[Material, Dict[int, Material]],
                  cell_tags=None, facet_tags=None, bcs: Sequence[BoundaryCondition] = (),
                  sigma0=((0.0, 0.0), (0.0, 0.0)), cfl: Optional[float] = None, dt: Optional[float] = None,
-                 scheme: str = "rk4", crack_facets: Optional[np.ndarray] = None, relaxation: float = 0.0):
+                 scheme: str = "rk4", crack_facets: Optional[np.ndarray] = None, relaxation: float = 0.0,
+                 operator: str = "matfree"):
         t_setup = time.perf_counter()
         self.mesh = mesh
         self.comm = mesh.comm
         if not isinstance(degree, (int, np.integer)) or not 1 <= degree <= MAX_DEGREE:
             raise ValueError(f"degree p must be an integer in 1..{MAX_DEGREE}; got {degree!r}")
+        if operator not in ("matfree", "assembled"):
+            raise ValueError(f"operator must be 'matfree' or 'assembled'; got {operator!r}")
+        self.operator = operator
         if scheme not in TABLEAUX:
             raise ValueError(f"scheme must be one of {sorted(TABLEAUX)}; got {scheme!r}")
         self.degree = int(degree)
@@ -268,13 +276,17 @@ class Solver:
         self.lam_cell = np.array([m.lam for m in order])[np.maximum(cell_mat, 0)]
         self.mu_cell = np.array([m.mu for m in order])[np.maximum(cell_mat, 0)]
 
-    def _interior_facet_tags(self):
-        tdim = self.mesh.topology.dim
+    def _bulk_facets(self):
+        """Local indices of the interior facets that carry the bulk upwind flux."""
         nf = compat.num_facets_with_ghosts(self.mesh)
         interior = np.ones(nf, dtype=bool)
         interior[compat.exterior_facet_indices(self.mesh)] = False
         interior[self.crack_facets] = False
-        idx = np.flatnonzero(interior)
+        return np.flatnonzero(interior)
+
+    def _interior_facet_tags(self):
+        tdim = self.mesh.topology.dim
+        idx = self._bulk_facets()
         return compat.meshtags(self.mesh, tdim - 1, idx, np.full(idx.size, BULK_FACET))
 
     def _bc_data(self, bc, n, unit=False, uext=None):
@@ -316,20 +328,32 @@ class Solver:
         n = ufl.FacetNormal(mesh)
         rho, lam, mu = self.rho, self.lam, self.mu
 
-        a = ef.volume(U, W, dx) + ef.interior_flux(U, W, rho, lam, mu, dS(BULK_FACET))
+        a_bulk = ef.volume(U, W, dx) + ef.interior_flux(U, W, rho, lam, mu, dS(BULK_FACET))
+        a_bdry = None
         homog = {"traction": 0.0, "velocity": 0.0, "state": (0.0, 0.0)}
         for bc in self.bcs:
             hd = tuple(homog[k] for k in bc.kinds)
-            a += ef.boundary_flux(U, W, rho, lam, mu, n, bc.kinds, hd, ds(bc.tag))
+            term = ef.boundary_flux(U, W, rho, lam, mu, n, bc.kinds, hd, ds(bc.tag))
+            a_bdry = term if a_bdry is None else a_bdry + term
         # traction-free on untagged exterior facets
         if free_tag is not None:
-            a += ef.boundary_flux(U, W, rho, lam, mu, n, ("traction", "traction"), (0.0, 0.0), ds(free_tag))
-        K = compat.assemble_matrix(compat.form(a))
+            term = ef.boundary_flux(U, W, rho, lam, mu, n, ("traction", "traction"), (0.0, 0.0), ds(free_tag))
+            a_bdry = term if a_bdry is None else a_bdry + term
 
         self.Minv = self._inverse_mass()
         self.M = _to_baij(self._mass_matrix(), ef.NCOMP)
-        self.A = _to_baij(self.Minv.matMult(K), ef.NCOMP)
-        K.destroy()
+        self.A = self.B = self.matfree = None
+        if self.operator == "assembled":
+            K = compat.assemble_matrix(compat.form(a_bulk if a_bdry is None else a_bulk + a_bdry))
+            self.A = _to_baij(self.Minv.matMult(K), ef.NCOMP)
+            K.destroy()
+        else:
+            from .matfree import MatrixFreeOperator
+            self.matfree = MatrixFreeOperator(self, self._bulk_facets())
+            if a_bdry is not None:  # boundary cells only: a sparse, mostly empty operator
+                K = compat.assemble_matrix(compat.form(a_bdry))
+                self.B = _to_baij(self.Minv.matMult(K), ef.NCOMP)
+                K.destroy()
 
         # loads: constant part, history-scaled parts, outer states
         self.c0 = None
@@ -543,7 +567,15 @@ class Solver:
     def rhs(self, y, t, out):
         """out = M^{-1}(K y + b(t)) + interface terms; returns the aux-state rates."""
         t0 = time.perf_counter()
-        self.A.mult(y, out)
+        if self.matfree is not None:
+            if self.comm.size > 1:
+                y.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            with y.localForm() as yl:
+                self.matfree.apply(yl.array_r, out.array)
+            if self.B is not None:
+                self.B.multAdd(y, out, out)
+        else:
+            self.A.mult(y, out)
         if self.relaxation:
             yv, ov = y.array_r.reshape(-1, ef.NCOMP), out.array.reshape(-1, ef.NCOMP)
             ov[:, :2] -= self.relaxation * yv[:, :2]
@@ -584,7 +616,7 @@ class Solver:
                     if aij:
                         zi += dt * aij * zk[e][j]
                 ext.stage_state = ext.constrain(zi)
-            if self.extensions:
+            if self.extensions and self.matfree is None:  # (the matrix-free rhs updates them itself)
                 y.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
             self.timers.add("rk update", time.perf_counter() - t0)
             rates = self.rhs(y, t + c[i] * dt, ks[i])
