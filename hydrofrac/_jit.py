@@ -13,9 +13,16 @@ except ImportError:  # pragma: no cover - numba is a listed dependency
 HAVE_NUMBA = numba is not None
 
 
+#: floating-point flags of the compiled kernels: reassociation and FMA contraction let
+#: LLVM vectorise the small dense loops; NaN and Inf keep their IEEE meaning (no
+#: "nnan"/"ninf"), so a blow-up still shows as NaN in the energy check.
+FASTMATH = {"contract", "reassoc", "nsz", "arcp"}
+
+
 def njit(fn):
-    """``numba.njit(cache=True)``, or ``fn`` itself without numba."""
-    return numba.njit(cache=True)(fn) if HAVE_NUMBA else fn
+    """``numba.njit`` (cached, numpy error model: no Python-style zero-division checks),
+    or ``fn`` itself without numba."""
+    return numba.njit(cache=True, error_model="numpy", fastmath=FASTMATH)(fn) if HAVE_NUMBA else fn
 
 
 def vectorize(point_fn, signatures):

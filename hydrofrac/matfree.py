@@ -145,6 +145,73 @@ def _facet_fluxes(R, X, dofs, fcells, fcodes, normal, length, qw, tables, Zd, Zs
                     R[c, j, 4] += a * F4
 
 
+@njit
+def _facet_dissipation(X, dofs, fcells, fcodes, fown, normal, length, qw, tables, Zd, Zs):
+    """Rate of energy dissipated by the upwind flux on the owned listed facets:
+    int sum_i Z_i+ Z_i- / (Z_i+ + Z_i-) [[v_i]]^2 + [[s_i]]^2 / (Z_i+ + Z_i-), i = n, t
+    (the quadratic form of :func:`hydrofrac.forms.elastodynamics.interior_dissipation`)."""
+    nq = qw.shape[0]
+    nb = dofs.shape[1]
+    total = 0.0
+    for f in range(fcells.shape[0]):
+        if not fown[f]:
+            continue
+        cp, cm = fcells[f, 0], fcells[f, 1]
+        Tp, Tm = tables[fcodes[f, 0]], tables[fcodes[f, 1]]
+        nx, ny = normal[f, 0], normal[f, 1]
+        Zpn, Zps, Zmn, Zms = Zd[cp], Zs[cp], Zd[cm], Zs[cm]
+        acc = 0.0
+        for q in range(nq):
+            d0 = d1 = d2 = d3 = d4 = 0.0  # jumps of the five fields, + minus -
+            for j in range(nb):
+                a = Tp[q, j]
+                b = Tm[q, j]
+                ip = 5 * dofs[cp, j]
+                im = 5 * dofs[cm, j]
+                d0 += a * X[ip] - b * X[im]
+                d1 += a * X[ip + 1] - b * X[im + 1]
+                d2 += a * X[ip + 2] - b * X[im + 2]
+                d3 += a * X[ip + 3] - b * X[im + 3]
+                d4 += a * X[ip + 4] - b * X[im + 4]
+            dvn, dvt = d0 * nx + d1 * ny, -d0 * ny + d1 * nx
+            sx, sy = d2 * nx + d4 * ny, d4 * nx + d3 * ny
+            dsn, dst = sx * nx + sy * ny, -sx * ny + sy * nx
+            acc += qw[q] * (Zpn * Zmn / (Zpn + Zmn) * dvn * dvn + dsn * dsn / (Zpn + Zmn)
+                            + Zps * Zms / (Zps + Zms) * dvt * dvt + dst * dst / (Zps + Zms))
+        total += acc * length[f]
+    return total
+
+
+@njit
+def _cell_energies(X, X0, dofs, ncells, Mref, absdet, Bmat):
+    """(kinetic, strain) energy of X - X0 on the owned cells: 1/2 u^T M_c u with
+    M_c = |det J| Mref kron B_c (B_c: rho for v, the compliance for sigma)."""
+    nb = dofs.shape[1]
+    u = np.empty((nb, 5))
+    kin = 0.0
+    strain = 0.0
+    for c in range(ncells):
+        for j in range(nb):
+            base = 5 * dofs[c, j]
+            for k in range(5):
+                u[j, k] = X[base + k] - X0[base + k]
+        B = Bmat[c]
+        ek = 0.0
+        es = 0.0
+        for a in range(nb):
+            for b in range(nb):
+                m = Mref[a, b]
+                ek += m * (B[0, 0] * u[a, 0] * u[b, 0] + B[1, 1] * u[a, 1] * u[b, 1])
+                s = 0.0
+                for k in range(2, 5):
+                    for l in range(2, 5):
+                        s += B[k, l] * u[a, k] * u[b, l]
+                es += m * s
+        kin += absdet[c] * ek
+        strain += absdet[c] * es
+    return 0.5 * kin, 0.5 * strain
+
+
 class MatrixFreeOperator:
     """Bulk operator M^{-1}(K_vol + K_int) of a :class:`~hydrofrac.solver.Solver`, applied
     cell by cell (see the module docstring).  ``facets``: local indices of the interior
@@ -218,11 +285,24 @@ class MatrixFreeOperator:
                 if err > 1e-8 or np.any(ia == ib):
                     raise RuntimeError(f"facet vertices do not map onto reference vertices (error {err:.2e})")
             codes[:, side] = 3 * ia + ib
+        fmask = compat.facet_owned_mask(mesh)
+        self.fown = np.ascontiguousarray(fmask[facets])  # count each facet once in global sums
         self.fcells = np.ascontiguousarray(cells, dtype=np.int64)
         self.fcodes = np.ascontiguousarray(codes, dtype=np.int64)
         self.normal = np.ascontiguousarray(n)
         self.length = np.ascontiguousarray(length)
         self.R = np.zeros((self.nowned, self.dofs.shape[1], 5))
+        self.Mref = np.ascontiguousarray(ref.mass())
+        self.Bmat = solver.material_blocks
+
+    def dissipation_rate(self, xloc):
+        """This rank's share of the interior upwind dissipation rate [W/m] (ghosts current)."""
+        return _facet_dissipation(xloc, self.dofs, self.fcells, self.fcodes, self.fown, self.normal, self.length,
+                                  self.qw, self.tables, self.Zd, self.Zs)
+
+    def energies(self, xloc, x0loc):
+        """This rank's (kinetic, strain) energy of x - x0 [J/m]."""
+        return _cell_energies(xloc, x0loc, self.dofs, self.nowned, self.Mref, self.absdet, self.Bmat)
 
     def apply(self, xloc, out):
         """out (owned values) = M^{-1}(K_vol + K_int) x; ``xloc``: local form incl. ghosts."""

@@ -386,8 +386,10 @@ class Solver:
             self.c0 = self._minv_vector(Lconst)
 
         # energy diagnostics: upwind dissipation (quadratic form) and boundary power
-        Qd = ef.interior_dissipation(U, W, rho, lam, mu, dS(BULK_FACET))
-        self.Qd = _to_baij(compat.assemble_matrix(compat.form(Qd)), ef.NCOMP)
+        self.Qd = None
+        if self.matfree is None:  # (the matrix-free operator has its own kernel for this)
+            Qd = ef.interior_dissipation(U, W, rho, lam, mu, dS(BULK_FACET))
+            self.Qd = _to_baij(compat.assemble_matrix(compat.form(Qd)), ef.NCOMP)
         self.u = compat.function(V, "U")
         self._power_forms = []
         bdiss = None  # upwind dissipation on exterior facets (one form, one reduction)
@@ -457,6 +459,7 @@ class Solver:
         B[:, 2, 3] = B[:, 3, 2] = -c * kappa
         B[:, 4, 4] = 2 * c
         Binv = np.linalg.inv(B)
+        self.material_blocks = np.ascontiguousarray(B)  # per cell: rho for v, compliance for sigma
         absdet = np.abs(self.geometry.detJ)
         # factors of the per-cell blocks (all cells incl. ghosts), for cell-local kernels:
         # M_c^{-1} = Mref_inv kron Binv_scaled[c]
@@ -635,6 +638,11 @@ class Solver:
     # ------------------------------------------------------------------ energy
     def energies(self):
         """(kinetic, strain) energy relative to the initial stress state [J/m]."""
+        if self.matfree is not None:
+            with self.x.localForm() as xl, self.x0.localForm() as x0l:
+                e = np.array(self.matfree.energies(xl.array_r, x0l.array_r))
+            self.comm.Allreduce(MPI.IN_PLACE, e, op=MPI.SUM)
+            return float(e[0]), float(e[1])
         d = self._work[-1] if hasattr(self, "_work") else self.x_like()
         self.x.copy(d)
         d.axpy(-1.0, self.x0)
@@ -663,9 +671,13 @@ class Solver:
                 p_rad -= val
             else:
                 p_in += val
-        Qx = self._work[-2]
-        self.Qd.mult(self.x, Qx)
-        diss = Qx.dot(self.x)
+        if self.matfree is not None:
+            with self.u.vector.localForm() as ul:  # ghosts updated above
+                diss = self.comm.allreduce(self.matfree.dissipation_rate(ul.array_r), op=MPI.SUM)
+        else:
+            Qx = self._work[-2]
+            self.Qd.mult(self.x, Qx)
+            diss = Qx.dot(self.x)
         if self._bdiss_form is not None:
             diss += compat.assemble_scalar(self._bdiss_form, self.comm)
         return p_in, p_rad, diss

@@ -12,8 +12,9 @@
 #
 # 1. **Throughput** of the bulk time step, in DOF·stages per second, for p = 1, 2, 3
 #    on three structured meshes of the unit square each (the largest has ~0.4-0.55
-#    million DOFs); also the bare operator mat-vec ``A.mult`` alone.
-#    File ``bulk_throughput_n<ranks>.csv``.
+#    million DOFs), for both bulk operators side by side on the same mesh: the
+#    matrix-free kernels (default) and the assembled BAIJ matrix; also the operator
+#    application alone.  File ``bulk_throughput_n<ranks>.csv``.
 # 2. **Memory bandwidth** of the machine: a NumPy copy of a 128 MiB array on every
 #    rank at once, counted as bytes read + bytes written per second (the
 #    write-allocate read of the destination is not counted, so this is a
@@ -38,9 +39,15 @@
 #   average 68 bytes per DOF·stage.
 #
 # So bytes/(DOF·stage) = (8·nnz + 4·nblocks + 4·(block rows + 1))/n + 16 + 68 for
-# RK4; for p = 1 about 560 bytes, dominated by the matrix.  A matrix-free kernel
-# would move only the vector traffic (~42-84 bytes), which is why the table also
-# reports the operator's share.  The bound is ``bandwidth / bytes`` DOF·stages/s.
+# RK4; for p = 1 about 560 bytes, dominated by the matrix.
+#
+# The matrix-free operator (:mod:`hydrofrac.matfree`) instead reads ``y`` once and
+# writes ``k`` once (16 bytes), round-trips the cell residual array (zero, accumulate,
+# read: 32 bytes) and reads its per-cell and per-facet data once (dofmap, inverse
+# Jacobian, |det J|, the 5×5 material block, impedances; the facets' cells, table codes,
+# normal and length), counted from the arrays' sizes: ~24 bytes per DOF at p = 1.
+# Re-reads of ``y`` by the up to three facets of a cell are assumed to hit the cache.
+# The bound is ``bandwidth / bytes`` DOF·stages/s.
 
 # +
 from __future__ import annotations
@@ -98,11 +105,18 @@ def copy_bandwidth(comm, mib=128, repeats=7):
 
 def bytes_per_dof_stage(solver: Solver):
     """(operator bytes, RK vector bytes) per DOF·stage, as documented above."""
-    info = solver.A.getInfo(info=solver.A.InfoType.GLOBAL_SUM)
-    nnz = info["nz_used"]
     n = solver.num_dofs
-    bs = solver.A.getBlockSize()
-    operator = (8 * nnz + 4 * nnz / bs ** 2 + 4 * (n / bs + solver.comm.size)) / n + 16
+    if solver.matfree is not None:
+        mf = solver.matfree
+        data = sum(a.nbytes for a in (mf.dofs[:mf.nowned], mf.Jinv[:mf.nowned], mf.absdet[:mf.nowned],
+                                       mf.Binv[:mf.nowned], mf.Zd[:mf.nowned], mf.Zs[:mf.nowned], mf.fcells,
+                                       mf.fcodes, mf.normal, mf.length))
+        operator = solver.comm.allreduce(data, op=MPI.SUM) / n + 16 + 32
+    else:
+        info = solver.A.getInfo(info=solver.A.InfoType.GLOBAL_SUM)
+        nnz = info["nz_used"]
+        bs = solver.A.getBlockSize()
+        operator = (8 * nnz + 4 * nnz / bs ** 2 + 4 * (n / bs + solver.comm.size)) / n + 16
     a, b, _ = TABLEAUX[solver.scheme]
     s = len(b)
     rk = 16 + sum((len(row) + 2) * 8 for row in a if row) / s + (s + 2) * 8 / s
@@ -124,9 +138,9 @@ def timed(comm, fn, count):
     return comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
 
 
-def throughput_case(comm, p, N, bandwidth):
+def throughput_case(comm, p, N, bandwidth, operator, mesh):
     t0 = time.perf_counter()
-    solver = Solver(unit_square(comm, N), p, ROCK)
+    solver = Solver(mesh, p, ROCK, operator=operator)
     setup = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
     x = solver.x.duplicate()
     x.setRandom()
@@ -139,11 +153,11 @@ def throughput_case(comm, p, N, bandwidth):
     steps = comm.bcast(steps, root=0)
     wall = timed(comm, solver.step, steps)
     mults = max(3, steps * s)
-    wall_mult = timed(comm, lambda: solver.A.mult(x, y), mults)
+    wall_mult = timed(comm, lambda: solver.rhs(x, 0.0, y), mults)
     op_bytes, rk_bytes = bytes_per_dof_stage(solver)
     rate = n * s * steps / wall
     row = {
-        "p": p, "N": N, "cells": solver.num_cells, "dofs": n, "ranks": comm.size, "setup_s": setup,
+        "operator": operator, "p": p, "N": N, "cells": solver.num_cells, "dofs": n, "ranks": comm.size, "setup_s": setup,
         "steps": steps, "wall_s": wall, "dof_stages_per_s": rate, "dof_stages_per_s_per_rank": rate / comm.size,
         "mult_dofs_per_s": n * mults / wall_mult,
         "bytes_per_dof_stage": op_bytes + rk_bytes, "operator_bytes_per_dof": op_bytes,
@@ -241,11 +255,12 @@ def plot_work_precision(rows, png: Path, ranks: int):
 
 def rate_table(rows):
     """Markdown table of the throughput rows."""
-    lines = ["| p | N | DOFs | ranks | DOF·stages/s | per rank | bytes/DOF·stage | bound fraction "
-             "| A.mult fraction |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| operator | p | N | DOFs | ranks | DOF·stages/s | per rank | bytes/DOF·stage | bound fraction "
+             "| operator-only fraction |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['p']} | {r['N']} | {r['dofs']} | {r['ranks']} | {r['dof_stages_per_s']:.3g} | "
+        lines.append(f"| {r['operator']} | {r['p']} | {r['N']} | {r['dofs']} | {r['ranks']} | "
+                     f"{r['dof_stages_per_s']:.3g} | "
                      f"{r['dof_stages_per_s_per_rank']:.3g} | {r['bytes_per_dof_stage']:.0f} | "
                      f"{r['fraction_of_bound']:.2f} | {r['mult_fraction_of_bound']:.2f} |")
     return "\n".join(lines)
@@ -281,12 +296,17 @@ def main(argv=None):
     rows = []
     for p, Ns in tp_sizes.items():
         for N in Ns:
-            r = throughput_case(comm, p, N, bandwidth)
-            rows.append(r)
-            log(comm, f"[bench] p={p} N={N:4d} {r['dofs']:8d} DOFs: step {r['dof_stages_per_s']:.3g} DOF*stages/s "
-                      f"({r['fraction_of_bound']:.2f} of the bound at {r['bytes_per_dof_stage']:.0f} B), "
-                      f"A.mult {r['mult_dofs_per_s']:.3g} DOF/s ({r['mult_fraction_of_bound']:.2f}), "
-                      f"setup {r['setup_s']:.1f} s")
+            mesh = unit_square(comm, N)
+            pair = {}
+            for operator in ("matfree", "assembled"):
+                r = throughput_case(comm, p, N, bandwidth, operator, mesh)
+                rows.append(r)
+                pair[operator] = r["dof_stages_per_s"]
+                log(comm, f"[bench] {operator:9s} p={p} N={N:4d} {r['dofs']:8d} DOFs: step "
+                          f"{r['dof_stages_per_s']:.3g} DOF*stages/s ({r['fraction_of_bound']:.2f} of the bound at "
+                          f"{r['bytes_per_dof_stage']:.0f} B), operator alone {r['mult_dofs_per_s']:.3g} DOF/s "
+                          f"({r['mult_fraction_of_bound']:.2f}), setup {r['setup_s']:.1f} s")
+            log(comm, f"[bench]           matrix-free / assembled step rate: {pair['matfree'] / pair['assembled']:.2f}")
     if comm.rank == 0:
         write_csv(out / f"bulk_throughput_n{comm.size}.csv", rows)
         print(rate_table(rows), flush=True)

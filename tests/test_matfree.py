@@ -88,3 +88,21 @@ def test_matfree_equals_assembled_parallel(p):
     comm = MPI.COMM_WORLD
     rel, scale = compare(comm, p)
     assert rel < RTOL, f"p = {p}, {comm.size} ranks: relative difference {rel:.3e}"
+
+
+@pytest.mark.parametrize("p", [1, 3])
+def test_matfree_energy_terms_equal_assembled(p):
+    """Kinetic and strain energy (cell kernel vs the assembled mass matrix) and the interior
+    upwind dissipation rate (facet kernel vs the assembled quadratic form) agree; both are
+    sums of positive terms, so round-off is relative to the value."""
+    comm = MPI.COMM_WORLD
+    data = mesh_data(comm)
+    vals = []
+    for operator in ("assembled", "matfree"):
+        solver = problem(data, p, operator)
+        random_rhs(solver)  # sets the random state
+        kin, strain = solver.energies()
+        _, _, diss = solver.energy_rates()
+        vals.append(np.array([kin, strain, diss]))
+    assert np.all(vals[0] > 0)
+    np.testing.assert_allclose(vals[1], vals[0], rtol=1e-12)
