@@ -72,13 +72,21 @@ class ContactParams:
     w0 : normalised separation-velocity width w'₀ > 0 of the contact -> separation ramp
         [our choice: 0.01, i.e. a bonded-traction excess of 0.005 s̄]
     regularized : False gives the exact (discontinuous) map of fig. 3, for comparison
+    penalty : None (default: the Riemann contact model above), or a penalty stiffness
+        kappa [Pa/m] for the *penalty baseline* of the stability study: debonded facets are
+        always in the separation mode (eta = 0) with the normal traction
+        S^1 += -kappa <-delta> (contact by interpenetration, frictionless), as a penalty
+        method would impose; penetration ~ p/kappa and an explicit step limit ~ Z~/kappa.
     """
 
     delta0: float = -0.01
     w0: float = 0.01
     regularized: bool = True
+    penalty: Optional[float] = None
 
     def __post_init__(self):
+        if self.penalty is not None and not self.penalty > 0:
+            raise ValueError(f"contact penalty stiffness kappa must be > 0 Pa/m (or None); got {self.penalty}")
         if not self.delta0 < 0:
             raise ValueError(f"contact delta0 (maximum penetration delta'_0) must be < 0; got {self.delta0}")
         if not self.w0 > 0:
@@ -305,6 +313,7 @@ class Interface:
             xloc, self._dofs[0], self._dofs[1], self._phi[0], self._phi[1], self.n, self.Z[0], self.Z[1], self.Zt,
             self.friction, self.delta_scale, self.v_scale, D, np.ascontiguousarray(z[1]), S0, cS,
             self.contact.regularized, self.contact.delta0, self.contact.w0,
+            0.0 if self.contact.penalty is None else float(self.contact.penalty),
             T["vp"], T["vm"], T["sp"], T["sm"], T["s_B"], T["S"], T["s_star"], T["vp_star"], T["vm_star"],
             T["eta"], T["gamma"], T["w"])
         T.update(D=D.reshape(-1), Zp=self._Zq[0], Zm=self._Zq[1])
@@ -357,7 +366,7 @@ class Interface:
         maximum penetration delta'_0 delta~ (where eta = 1 and d(delta)/dt = 0)."""
         z = z.copy()
         z[0] = np.clip(z[0], self.state[0], 1.0)
-        if self.contact.regularized:
+        if self.contact.regularized and self.contact.penalty is None:
             z[1] = np.maximum(z[1], self.contact.delta0 * self.delta_scale[:, None])
         return z
 

@@ -43,12 +43,13 @@ def _trace(X, dofs, phi, f, q, nx, ny):
 
 @njit
 def interface_targets(X, dofs_p, dofs_m, phi_p, phi_m, normal, Zp, Zm, Zt, k, delta_scale, v_scale,
-                      D, delta, S0, cS, regularized, delta0, w0,
+                      D, delta, S0, cS, regularized, delta0, w0, kappa,
                       vp, vm, sp, sm, sB, S, s_star, vp_star, vm_star, eta, gamma, wn):
     """Targets at every Gauss point; outputs (last 12 arguments) are (nf*nq, 2) or (nf*nq,).
 
     The separation traction is ``S = S0 + cS <-s_B^1> e_n`` (the hydraulic law, eq. 16,
-    is of this form; S0 = cS = 0 for traction-free cracks)."""
+    is of this form; S0 = cS = 0 for traction-free cracks).  ``kappa`` > 0 switches to the
+    penalty baseline: eta = 0 and S^1 += -kappa <-delta>."""
     nf, nq = phi_p.shape[0], phi_p.shape[1]
     for f in range(nf):
         nx, ny = normal[f, 0], normal[f, 1]
@@ -60,9 +61,16 @@ def interface_targets(X, dofs_p, dofs_m, phi_p, phi_m, normal, Zp, Zm, Zt, k, de
             sBt, _ = bonded_pt(vpt, vmt, spt, smt, Zp[f, 1], Zm[f, 1])
             Sn = S0[f, q, 0] + cS[f, q] * macaulay_pt(-sBn)
             St = S0[f, q, 1]
+            if kappa > 0.0:
+                Sn -= kappa * macaulay_pt(-delta[f, q])
             w = 2.0 / Zt[f, 0] * (sBn - Sn) / v_scale[f]  # [[v_S^1]] / v~ (eqs. 11-12)
             dn = delta[f, q] / delta_scale[f]
-            e = eta_regularized_pt(dn, w, delta0, w0) if regularized else eta_exact_pt(dn, w)
+            if kappa > 0.0:
+                e = 0.0
+            elif regularized:
+                e = eta_regularized_pt(dn, w, delta0, w0)
+            else:
+                e = eta_exact_pt(dn, w)
             r = interface_point(vpn, vpt, vmn, vmt, spn, spt, smn, smt, Zp[f, 0], Zp[f, 1], Zm[f, 0], Zm[f, 1],
                                 k[f], D[f, q], e, Sn, St)
             vp[i, 0], vp[i, 1], vm[i, 0], vm[i, 1] = vpn, vpt, vmn, vmt

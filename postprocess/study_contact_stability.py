@@ -1,0 +1,216 @@
+"""Study: stability where penalty contact struggles (issue 7, study 2).
+
+Two rock bars close at ±1 m/s on a debonded interface (verification case 9), at a
+small size (p = 2, 20 cells along 2 m; the contact behaviour is local, so the size does
+not matter).  Three contact treatments on the same mesh:
+
+* **penalty** (baseline): normal traction -kappa <-delta>, kappa scanned over decades;
+* **this method**: Riemann contact with the regularised eta, delta'_0 scanned;
+* **unregularised eta** (exact map of model.md §4), at the bulk CFL step.
+
+A second experiment starts the bars 1 µm apart, so that the interface *closes* during a
+step: the largest penetration against the time step, for the exact and the regularised
+eta.  The exact map lets the faces overshoot by up to the closing speed times the step
+(it only switches to contact once delta <= 0 has happened); the regularised map caps the
+penetration at |delta'_0| delta~ whatever the step.
+
+For each case the largest stable time step is found by halving from the bulk CFL step.
+A step counts as stable when 100 µs of contact run without NaN or energy growth
+(``Solver.check_stability``) *and* the bars stay in contact with the right traction: the
+mean traction over the last 3/4 of the window within 10 % of the exact -Z_d v0 (a stiff
+penalty spring at too large a step can also throw the bars apart without any energy
+growth).  The largest penetration and the contact traction history of the largest stable
+run are recorded.  Writes ``contact_stability.csv`` and ``contact_stability.png``
+(time step and penetration against kappa and against delta'_0; the traction history)
+into ``postprocess/results`` (``--out``).
+
+    python -m hydrofrac.postprocess.study_contact_stability [--quick] [--out DIR]
+
+Expected (and measured, see the README): the penalty's stable step falls like
+Z~/kappa once kappa exceeds ~Z~/dt_CFL while its penetration falls like p/kappa; the
+Riemann contact keeps the bulk CFL step for every delta'_0, with penetration
+|delta'_0| delta~.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+from hydrofrac import ROCK, compat
+from hydrofrac.boundary import Symmetry
+from hydrofrac.interface import ContactParams, Crack, Interface, crack_facet_indices
+from hydrofrac.solver import BlowUpError, Solver
+
+CRACK, SIDES = 10, 1
+L, V0 = 1.0, 1.0
+T_WINDOW = 100e-6
+KAPPAS = (1e11, 1e12, 1e13, 1e14, 1e15)
+DELTA0S = (-1e-1, -1e-2, -1e-3, -1e-4)
+
+
+def bars(comm, nx):
+    h = 2 * L / nx
+    mesh = compat.create_rectangle(comm, (-L, 0.0), (L, h), nx, 1)
+    crack = compat.locate_facets(mesh, lambda x: np.isclose(x[0], 0.0))
+    sides = np.r_[compat.locate_boundary_facets(mesh, lambda x: np.isclose(x[1], 0.0)),
+                  compat.locate_boundary_facets(mesh, lambda x: np.isclose(x[1], h))]
+    tags = compat.meshtags(mesh, 1, np.r_[crack, sides], np.r_[np.full(crack.size, CRACK), np.full(sides.size, SIDES)])
+    return mesh, tags
+
+
+def run_case(mesh, tags, contact: ContactParams, dt_factor: float, degree=2, t_window=T_WINDOW, gap=0.0):
+    """Run the impact for ``t_window`` (the bars start ``gap`` apart); returns (stable, dt,
+    penetration, times, mean traction)."""
+    cracks = [Crack(CRACK, friction=0.0, damage=1.0, opening=gap)]
+    facets = crack_facet_indices(mesh, tags, cracks)
+    probe = Solver(mesh, degree, ROCK, facet_tags=tags, bcs=[Symmetry(SIDES)], crack_facets=facets)
+    solver = Solver(mesh, degree, ROCK, facet_tags=tags, bcs=[Symmetry(SIDES)], crack_facets=facets,
+                    dt=probe.dt * dt_factor)
+    solver.set_initial_state(lambda x: np.vstack([np.where(x[0] < 0, V0, -V0)] + [0 * x[0]] * 4), by_cell=True)
+    iface = Interface(solver, tags, cracks, contact=contact)
+    comm = solver.comm
+    n = comm.allreduce(iface.facets.size * iface.nq, op=MPI.SUM)
+    ts, sn = [], []
+    solver.update_energy()
+    try:
+        while solver.t < t_window * (1 - 1e-9):
+            solver.step()
+            solver.update_energy()
+            solver.check_stability()
+            ts.append(solver.t)
+            sn.append(comm.allreduce(float(iface.last["s_star"][:, 0].sum()), op=MPI.SUM) / n)
+        stable = True
+    except BlowUpError:
+        stable = False
+    sn = np.array(sn)
+    if stable:
+        plateau = sn[len(sn) // 4:].mean()
+        stable = abs(plateau / (-ROCK.Zd * V0) - 1.0) < 0.1
+    return stable, solver.dt, iface.max_penetration(), np.array(ts), sn
+
+
+def largest_stable(mesh, tags, contact, max_halvings=12):
+    """Halve the step from the bulk CFL step until the run is stable."""
+    for k in range(max_halvings + 1):
+        stable, dt, pen, ts, sn = run_case(mesh, tags, contact, 0.5 ** k)
+        if stable:
+            return dict(stable_dt=dt, halvings=k, penetration=pen, t=ts, sn=sn)
+    return dict(stable_dt=np.nan, halvings=max_halvings + 1, penetration=np.nan, t=ts, sn=sn)
+
+
+def chatter(sn):
+    """Total variation of the mean contact traction over the last 3/4 of the window,
+    relative to the exact contact stress Z_d v0."""
+    s = sn[len(sn) // 4:]
+    return float(np.abs(np.diff(s)).sum() / (ROCK.Zd * V0)) if s.size > 1 else float("nan")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer kappa and delta'_0 values")
+    parser.add_argument("--out", default="postprocess/results")
+    args = parser.parse_args(argv)
+    comm = MPI.COMM_WORLD
+    mesh, tags = bars(comm, 20)
+    kappas = KAPPAS[1::2] if args.quick else KAPPAS
+    deltas = DELTA0S[::3] if args.quick else DELTA0S
+    rows, series = [], {}
+    dt_cfl = None
+    for kappa in kappas:
+        r = largest_stable(mesh, tags, ContactParams(penalty=kappa))
+        dt_cfl = dt_cfl or r["stable_dt"] * 2 ** r["halvings"]
+        rows.append({"method": "penalty", "parameter": kappa, **{k: r[k] for k in ("stable_dt", "halvings",
+                                                                                   "penetration")},
+                     "chatter": chatter(r["sn"])})
+        series[f"penalty kappa={kappa:.0e}"] = (r["t"], r["sn"])
+    for d0 in deltas:
+        r = largest_stable(mesh, tags, ContactParams(delta0=d0))
+        rows.append({"method": "riemann", "parameter": d0, **{k: r[k] for k in ("stable_dt", "halvings",
+                                                                                "penetration")},
+                     "chatter": chatter(r["sn"])})
+        series[f"regularised eta, delta0'={d0:g}"] = (r["t"], r["sn"])
+    r = largest_stable(mesh, tags, ContactParams(regularized=False))
+    rows.append({"method": "exact_eta", "parameter": 0.0, **{k: r[k] for k in ("stable_dt", "halvings",
+                                                                                "penetration")},
+                 "chatter": chatter(r["sn"])})
+    series["unregularised eta"] = (r["t"], r["sn"])
+    for name, contact in (("closure_exact_eta", ContactParams(regularized=False)),
+                          ("closure_regularised", ContactParams())):
+        for k in (0, 2, 4):
+            stable, dt, pen, _, sn = run_case(mesh, tags, contact, 0.5 ** k, gap=1e-6)
+            rows.append({"method": name, "parameter": 0.5 ** k, "stable_dt": dt if stable else np.nan,
+                         "halvings": k, "penetration": pen, "chatter": chatter(sn)})
+    if comm.rank != 0:
+        return rows
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "contact_stability.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        for row in rows:
+            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+    for row in rows:
+        print(f"[study] {row['method']:19s} {row['parameter']:9.3g}: largest stable dt {row['stable_dt']:.3g} s "
+              f"({row['stable_dt'] / dt_cfl:.3g} x the bulk CFL step), penetration {row['penetration']:.3g} m, "
+              f"traction chatter {row['chatter']:.3g}", flush=True)
+    plot(rows, series, dt_cfl, out / "contact_stability.png")
+    print(f"[study] wrote {out}/contact_stability.csv and contact_stability.png", flush=True)
+    return rows
+
+
+def plot(rows, series, dt_cfl, png):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 4, figsize=(17, 3.8), dpi=80)
+    pen = [r for r in rows if r["method"] == "penalty"]
+    rie = [r for r in rows if r["method"] == "riemann"]
+    delta_t = ROCK.Zd  # for the second x axis label only
+    ax = axes[0]
+    ax.loglog([r["parameter"] for r in pen], [r["stable_dt"] / dt_cfl for r in pen], "o-", label="stable dt / dt_CFL")
+    ax.loglog([r["parameter"] for r in pen], [r["penetration"] for r in pen], "s--", label="penetration [m]")
+    ax.set_xlabel("penalty stiffness kappa [Pa/m]")
+    ax.set_title("penalty contact", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax = axes[1]
+    x = [abs(r["parameter"]) for r in rie]
+    ax.loglog(x, [r["stable_dt"] / dt_cfl for r in rie], "o-", label="stable dt / dt_CFL")
+    ax.loglog(x, [r["penetration"] for r in rie], "s--", label="penetration [m]")
+    ax.invert_xaxis()
+    ax.set_xlabel("|delta'_0| (maximum penetration / delta~)")
+    ax.set_title("Riemann contact, regularised eta", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax = axes[2]
+    for name, (t, sn) in series.items():
+        if name.startswith("penalty") and name != f"penalty kappa={pen[-1]['parameter']:.0e}":
+            continue
+        if name.startswith("regularised") and not name.endswith(f"{rie[0]['parameter']:g}"):
+            continue
+        ax.plot(np.asarray(t) * 1e6, np.asarray(sn) / 1e6, label=name, lw=1)
+    ax.axhline(-delta_t * V0 / 1e6, color="k", ls=":", lw=0.8, label="exact -Z_d v0")
+    ax.set_xlabel("t [µs]")
+    ax.set_ylabel("mean contact traction [MPa]")
+    ax.set_title("traction history (largest stable step)", fontsize=10)
+    ax.legend(fontsize=7)
+    ax = axes[3]
+    for method, label in (("closure_exact_eta", "unregularised eta"), ("closure_regularised", "regularised eta")):
+        rs = [r for r in rows if r["method"] == method]
+        ax.loglog([r["parameter"] for r in rs], [max(r["penetration"], 1e-12) for r in rs], "o-", label=label)
+    ax.set_xlabel("time step / dt_CFL")
+    ax.set_ylabel("largest penetration [m]")
+    ax.set_title("closing a 1 µm gap at 2 m/s", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(png)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
