@@ -270,8 +270,11 @@ class Interface:
         self._ghosted_cells_with_flux = np.any(cells >= nloc)
         self._ghost_flux = solver.comm.allreduce(bool(self._ghosted_cells_with_flux), op=MPI.LOR)
         self.last = {}
-        self._stage_T = self._buffers()
         self._views = {}
+        # residual entries the interface writes: the cells on both sides of its facets
+        # (owned or ghost) and the owned cells receiving other ranks' contributions
+        touched_cells = np.unique(np.r_[cells.reshape(-1), self.owned_cells]).astype(np.int64)
+        self._touched = (5 * self._all_dofs[touched_cells][:, :, None] + np.arange(5)).reshape(-1)
         solver.extensions.append(self)
         solver.timers.add("setup", time.perf_counter() - t0)
         self.evaluate(solver.x, 0.0, store=True)
@@ -339,25 +342,29 @@ class Interface:
         return T
 
     def rhs(self, y, t, out):
-        """Add M^{-1} (interface flux terms) into ``out``; return the state rates."""
+        """Add M^{-1} (interface flux terms) into ``out``; return the state rates.
+
+        One compiled pass over the crack facets (:func:`hydrofrac.kernels.interface_stage`)
+        into a residual that is zero outside the cells next to cracks, then (in parallel)
+        the reverse scatter of contributions to ghost cells, and the cells' inverse mass."""
         t0 = time.perf_counter()
         z = self.stage_state
-        T = self.evaluate(y, t, z=z, T=self._stage_T)
-        r = self._local(self._r, write=True)
-        r[:] = 0.0
-        kernels.interface_residual(r, self._dofs[0], self._dofs[1], self._phi[0], self._phi[1], self.n,
-                                   self.weights, T["vp"], T["vm"], T["sp"], T["sm"], T["s_star"],
-                                   T["vp_star"], T["vm_star"])
+        S0, cS = self._separation(t)
+        r = self._local(self._r, write=True)  # zero except during this call
+        rates = np.empty_like(z)
+        d, c = self.damage, self.contact
+        kernels.interface_stage(self._local(y), r, rates, self._dofs[0], self._dofs[1], self._phi[0], self._phi[1],
+                                self.n, self.weights, self.Z[0], self.Z[1], self.Zt, self.friction, self.delta_scale,
+                                self.v_scale, z[0], z[1], S0, cS, c.regularized, c.delta0, c.w0,
+                                0.0 if c.penalty is None else float(c.penalty), d.beta, d.s_onset, d.s_bar,
+                                self.tau, d.a)
         if self._ghost_flux:
             self._r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         # apply the per-cell inverse mass of the touched owned cells
         if self.owned_cells.size:
-            kernels.apply_block_inverse(out.array, self._r.array_r, self.owned_cells, self._all_dofs,
+            kernels.apply_block_inverse(out.array, r, self.owned_cells, self._all_dofs,
                                         self.solver.Mref_inv, self.solver.Binv_scaled)
-        rates = np.empty_like(z)
-        d = self.damage
-        kernels.interface_rates(rates, T["s_B"], z[0], T["vp_star"], T["vm_star"], d.beta, d.s_onset, d.s_bar,
-                                self.tau, d.a)
+        r[self._touched] = 0.0
         self.solver.timers.add("interface kernel", time.perf_counter() - t0)
         return rates
 

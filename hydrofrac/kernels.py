@@ -1,12 +1,12 @@
 """Compiled (numba) kernels of the crack interface: one loop over crack facets and
 their Gauss points per Runge-Kutta stage.
 
-* :func:`interface_targets` evaluates both sides' traces, the bonded solution, the
-  separation traction, eta, and the combined targets via
+* :func:`interface_stage` (one Runge-Kutta stage): per Gauss point, both sides' traces,
+  the bonded solution, the separation traction, eta and the combined targets via
   :func:`hydrofrac.riemann.interface_point` (the one implementation of the formulas);
-* :func:`interface_residual` integrates the flux corrections
-  ``(s* - s).w + (v* - v).(tau n)`` of both sides into a residual vector;
-* :func:`interface_rates` gives the state rates (damage, opening, slip);
+  the flux corrections ``(s* - s).w + (v* - v).(tau n)`` of both sides integrated into a
+  residual vector; the state rates (damage, opening, slip);
+* :func:`interface_targets`: the same targets stored per point (output, energy terms);
 * :func:`apply_block_inverse` multiplies the residual of the touched cells by their
   closed-form inverse mass blocks.
 
@@ -42,6 +42,34 @@ def _trace(X, dofs, phi, f, q, nx, ny):
 
 
 @njit
+def _point(X, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, Zp, Zm, Zt, k, delta_scale, v_scale, D, delta, S0, cS,
+           regularized, delta0, w0, kappa):
+    """Traces, bonded solution, separation traction, eta and combined targets at Gauss
+    point q of facet f.  Returns (vpn, vpt, vmn, vmt, spn, spt, smn, smt, sBn, sBt, Sn, St,
+    s*n, s*t, v*+n, v*+t, v*-n, v*-t, gamma, eta, w')."""
+    vpn, vpt, spn, spt = _trace(X, dofs_p, phi_p, f, q, nx, ny)
+    vmn, vmt, smn, smt = _trace(X, dofs_m, phi_m, f, q, nx, ny)
+    sBn, _ = bonded_pt(vpn, vmn, spn, smn, Zp[f, 0], Zm[f, 0])
+    sBt, _ = bonded_pt(vpt, vmt, spt, smt, Zp[f, 1], Zm[f, 1])
+    Sn = S0[f, q, 0] + cS[f, q] * macaulay_pt(-sBn)
+    St = S0[f, q, 1]
+    if kappa > 0.0:
+        Sn -= kappa * macaulay_pt(-delta[f, q])
+    w = 2.0 / Zt[f, 0] * (sBn - Sn) / v_scale[f]  # [[v_S^1]] / v~ (eqs. 11-12)
+    dn = delta[f, q] / delta_scale[f]
+    if kappa > 0.0:
+        e = 0.0
+    elif regularized:
+        e = eta_regularized_pt(dn, w, delta0, w0)
+    else:
+        e = eta_exact_pt(dn, w)
+    r = interface_point(vpn, vpt, vmn, vmt, spn, spt, smn, smt, Zp[f, 0], Zp[f, 1], Zm[f, 0], Zm[f, 1],
+                        k[f], D[f, q], e, Sn, St)
+    return (vpn, vpt, vmn, vmt, spn, spt, smn, smt, sBn, sBt, Sn, St, r[0], r[1], r[2], r[3], r[4], r[5], r[6],
+            e, w)
+
+
+@njit
 def interface_targets(X, dofs_p, dofs_m, phi_p, phi_m, normal, Zp, Zm, Zt, k, delta_scale, v_scale,
                       D, delta, S0, cS, regularized, delta0, w0, kappa,
                       vp, vm, sp, sm, sB, S, s_star, vp_star, vm_star, eta, gamma, wn):
@@ -55,33 +83,38 @@ def interface_targets(X, dofs_p, dofs_m, phi_p, phi_m, normal, Zp, Zm, Zt, k, de
         nx, ny = normal[f, 0], normal[f, 1]
         for q in range(nq):
             i = f * nq + q
-            vpn, vpt, spn, spt = _trace(X, dofs_p, phi_p, f, q, nx, ny)
-            vmn, vmt, smn, smt = _trace(X, dofs_m, phi_m, f, q, nx, ny)
-            sBn, _ = bonded_pt(vpn, vmn, spn, smn, Zp[f, 0], Zm[f, 0])
-            sBt, _ = bonded_pt(vpt, vmt, spt, smt, Zp[f, 1], Zm[f, 1])
-            Sn = S0[f, q, 0] + cS[f, q] * macaulay_pt(-sBn)
-            St = S0[f, q, 1]
-            if kappa > 0.0:
-                Sn -= kappa * macaulay_pt(-delta[f, q])
-            w = 2.0 / Zt[f, 0] * (sBn - Sn) / v_scale[f]  # [[v_S^1]] / v~ (eqs. 11-12)
-            dn = delta[f, q] / delta_scale[f]
-            if kappa > 0.0:
-                e = 0.0
-            elif regularized:
-                e = eta_regularized_pt(dn, w, delta0, w0)
-            else:
-                e = eta_exact_pt(dn, w)
-            r = interface_point(vpn, vpt, vmn, vmt, spn, spt, smn, smt, Zp[f, 0], Zp[f, 1], Zm[f, 0], Zm[f, 1],
-                                k[f], D[f, q], e, Sn, St)
-            vp[i, 0], vp[i, 1], vm[i, 0], vm[i, 1] = vpn, vpt, vmn, vmt
-            sp[i, 0], sp[i, 1], sm[i, 0], sm[i, 1] = spn, spt, smn, smt
-            sB[i, 0], sB[i, 1], S[i, 0], S[i, 1] = sBn, sBt, Sn, St
-            s_star[i, 0], s_star[i, 1] = r[0], r[1]
-            vp_star[i, 0], vp_star[i, 1] = r[2], r[3]
-            vm_star[i, 0], vm_star[i, 1] = r[4], r[5]
-            gamma[i] = r[6]
-            eta[i] = e
-            wn[i] = w
+            o = _point(X, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, Zp, Zm, Zt, k, delta_scale, v_scale, D, delta,
+                       S0, cS, regularized, delta0, w0, kappa)
+            vp[i, 0], vp[i, 1], vm[i, 0], vm[i, 1] = o[0], o[1], o[2], o[3]
+            sp[i, 0], sp[i, 1], sm[i, 0], sm[i, 1] = o[4], o[5], o[6], o[7]
+            sB[i, 0], sB[i, 1], S[i, 0], S[i, 1] = o[8], o[9], o[10], o[11]
+            s_star[i, 0], s_star[i, 1] = o[12], o[13]
+            vp_star[i, 0], vp_star[i, 1] = o[14], o[15]
+            vm_star[i, 0], vm_star[i, 1] = o[16], o[17]
+            gamma[i] = o[18]
+            eta[i] = o[19]
+            wn[i] = o[20]
+
+
+@njit
+def interface_stage(X, R, rates, dofs_p, dofs_m, phi_p, phi_m, normal, weights, Zp, Zm, Zt, k, delta_scale,
+                    v_scale, D, delta, S0, cS, regularized, delta0, w0, kappa, beta, s_onset, s_bar, tau, a):
+    """One Runge-Kutta stage on the crack facets in one pass: the targets at every Gauss
+    point (as :func:`interface_targets`), their flux corrections added to the residual R
+    (:func:`_flux`), and the state rates (3, nf, nq): damage (eqs. 8-10), normal opening
+    and slip from the target velocity jump [[v*]] = v*- - v*+."""
+    nf, nq = phi_p.shape[0], phi_p.shape[1]
+    for f in range(nf):
+        nx, ny = normal[f, 0], normal[f, 1]
+        for q in range(nq):
+            o = _point(X, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, Zp, Zm, Zt, k, delta_scale, v_scale, D, delta,
+                       S0, cS, regularized, delta0, w0, kappa)
+            _flux(R, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, weights[f, q], o[0], o[1], o[2], o[3], o[4], o[5],
+                  o[6], o[7], o[12], o[13], o[14], o[15], o[16], o[17])
+            Dt = target_damage_pt(effective_stress_pt(o[8], o[9], beta), s_onset, s_bar)
+            rates[0, f, q] = damage_rate_pt(D[f, q], Dt, tau[f], a)
+            rates[1, f, q] = o[16] - o[14]
+            rates[2, f, q] = o[17] - o[15]
 
 
 @njit
@@ -97,47 +130,25 @@ def _scatter(R, dofs, phi, f, q, F0, F1, F2, F3, F4):
 
 
 @njit
-def interface_residual(R, dofs_p, dofs_m, phi_p, phi_m, normal, weights, vp, vm, sp, sm, s_star, vp_star,
-                       vm_star):
-    """R += facet integrals of the flux corrections of both sides: momentum
+def _flux(R, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, w, vpn, vpt, vmn, vmt, spn, spt, smn, smt,
+          ssn, sst, vpsn, vpst, vmsn, vmst):
+    """Flux corrections of both sides at one Gauss point (weight w) into R: momentum
     ``(s* - s) . w`` and kinematics ``(v* - v) . (tau n)`` with each side's outward normal
     (side +: n, side -: -n; the side - traction is -s*, so both terms change sign)."""
-    nf, nq = phi_p.shape[0], phi_p.shape[1]
-    for f in range(nf):
-        nx, ny = normal[f, 0], normal[f, 1]
-        for q in range(nq):
-            i = f * nq + q
-            w = weights[f, q]
-            for side in range(2):
-                if side == 0:
-                    sgn, dsn, dst = 1.0, s_star[i, 0] - sp[i, 0], s_star[i, 1] - sp[i, 1]
-                    dvn, dvt = vp_star[i, 0] - vp[i, 0], vp_star[i, 1] - vp[i, 1]
-                else:
-                    sgn, dsn, dst = -1.0, s_star[i, 0] - sm[i, 0], s_star[i, 1] - sm[i, 1]
-                    dvn, dvt = vm_star[i, 0] - vm[i, 0], vm_star[i, 1] - vm[i, 1]
-                dsx, dsy = dsn * nx - dst * ny, dsn * ny + dst * nx  # to Cartesian
-                dvx, dvy = dvn * nx - dvt * ny, dvn * ny + dvt * nx
-                mx, my = sgn * nx, sgn * ny
-                F0, F1 = w * sgn * dsx, w * sgn * dsy
-                F2, F3, F4 = w * dvx * mx, w * dvy * my, w * (dvx * my + dvy * mx)
-                if side == 0:
-                    _scatter(R, dofs_p, phi_p, f, q, F0, F1, F2, F3, F4)
-                else:
-                    _scatter(R, dofs_m, phi_m, f, q, F0, F1, F2, F3, F4)
-
-
-@njit
-def interface_rates(rates, sB, D, vp_star, vm_star, beta, s_onset, s_bar, tau, a):
-    """State rates per Gauss point: damage (eqs. 8-10), normal opening and slip from
-    the target velocity jump [[v*]] = v*- - v*+.  ``rates`` is (3, nf, nq), ``tau`` per facet."""
-    nf, nq = rates.shape[1], rates.shape[2]
-    for f in range(nf):
-        for q in range(nq):
-            i = f * nq + q
-            Dt = target_damage_pt(effective_stress_pt(sB[i, 0], sB[i, 1], beta), s_onset, s_bar)
-            rates[0, f, q] = damage_rate_pt(D[f, q], Dt, tau[f], a)
-            rates[1, f, q] = vm_star[i, 0] - vp_star[i, 0]
-            rates[2, f, q] = vm_star[i, 1] - vp_star[i, 1]
+    for side in range(2):
+        if side == 0:
+            sgn, dsn, dst, dvn, dvt = 1.0, ssn - spn, sst - spt, vpsn - vpn, vpst - vpt
+        else:
+            sgn, dsn, dst, dvn, dvt = -1.0, ssn - smn, sst - smt, vmsn - vmn, vmst - vmt
+        dsx, dsy = dsn * nx - dst * ny, dsn * ny + dst * nx  # to Cartesian
+        dvx, dvy = dvn * nx - dvt * ny, dvn * ny + dvt * nx
+        mx, my = sgn * nx, sgn * ny
+        F0, F1 = w * sgn * dsx, w * sgn * dsy
+        F2, F3, F4 = w * dvx * mx, w * dvy * my, w * (dvx * my + dvy * mx)
+        if side == 0:
+            _scatter(R, dofs_p, phi_p, f, q, F0, F1, F2, F3, F4)
+        else:
+            _scatter(R, dofs_m, phi_m, f, q, F0, F1, F2, F3, F4)
 
 
 @njit
