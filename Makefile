@@ -3,7 +3,7 @@
 #   make setup   Debian packages (only the missing ones), .venv, editable install
 #   make demo    the regularised crack intersection + figures, charts, animation (2 ranks if 2 cores)
 #   make test    serial tests, then the MPI tests on 2 ranks
-#   make bench   bulk throughput + work-precision benchmark on 1 and 2 ranks
+#   make bench   bulk throughput + work-precision benchmark on 1 and 2 ranks, contact stability study
 #
 # DOLFINx, PETSc, Gmsh, NumPy, SciPy, numba, matplotlib and ParaView come from
 # Debian 12; the venv sees them (--system-site-packages) and adds pyvista and tqdm.
@@ -104,3 +104,4 @@ test-mpi: setup
 bench: setup
 	$(PY) scenarios/benchmark_bulk.py
 	$(MPIRUN) -n 2 $(PY) scenarios/benchmark_bulk.py
+	$(PY) -m hydrofrac.postprocess.study_contact_stability

@@ -16,10 +16,9 @@ penetration at |delta'_0| delta~ whatever the step.
 
 For each case the largest stable time step is found by halving from the bulk CFL step.
 A step counts as stable when 100 µs of contact run without NaN or energy growth
-(``Solver.check_stability``) *and* the bars stay in contact with the right traction: the
-mean traction over the last 3/4 of the window within 10 % of the exact -Z_d v0 (a stiff
-penalty spring at too large a step can also throw the bars apart without any energy
-growth).  The largest penetration and the contact traction history of the largest stable
+(``Solver.check_stability``) *and* the bars stay in contact: the mean traction over the
+last 3/4 of the window is at least half the exact -Z_d v0 (a stiff penalty spring at
+too large a step can also throw the bars apart without any energy growth).  The largest penetration and the contact traction history of the largest stable
 run are recorded.  Writes ``contact_stability.csv`` and ``contact_stability.png``
 (time step and penetration against kappa and against delta'_0; the traction history)
 into ``postprocess/results`` (``--out``).
@@ -87,9 +86,9 @@ def run_case(mesh, tags, contact: ContactParams, dt_factor: float, degree=2, t_w
     except BlowUpError:
         stable = False
     sn = np.array(sn)
-    if stable:
+    if stable and sn.size:
         plateau = sn[len(sn) // 4:].mean()
-        stable = abs(plateau / (-ROCK.Zd * V0) - 1.0) < 0.1
+        stable = plateau / (-ROCK.Zd * V0) > 0.5
     return stable, solver.dt, iface.max_penetration(), np.array(ts), sn
 
 
@@ -119,10 +118,9 @@ def main(argv=None):
     kappas = KAPPAS[1::2] if args.quick else KAPPAS
     deltas = DELTA0S[::3] if args.quick else DELTA0S
     rows, series = [], {}
-    dt_cfl = None
+    dt_cfl = run_case(mesh, tags, ContactParams(), 1.0, t_window=0.0)[1]
     for kappa in kappas:
         r = largest_stable(mesh, tags, ContactParams(penalty=kappa))
-        dt_cfl = dt_cfl or r["stable_dt"] * 2 ** r["halvings"]
         rows.append({"method": "penalty", "parameter": kappa, **{k: r[k] for k in ("stable_dt", "halvings",
                                                                                    "penetration")},
                      "chatter": chatter(r["sn"])})
