@@ -6,6 +6,7 @@ the (normal, tangential) components, what the outer state prescribes.
 """
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass, field
 from typing import Callable, Optional, Sequence, Union
 
@@ -36,6 +37,15 @@ class PiecewiseLinear:
         object.__setattr__(self, "values", tuple(float(x) for x in v))
 
     def __call__(self, t):
+        if isinstance(t, (float, int)):  # scalar fast path (called every Runge-Kutta stage)
+            ts, vs = self.times, self.values
+            if t <= ts[0]:
+                return vs[0]
+            if t >= ts[-1]:
+                return vs[-1]
+            i = bisect.bisect_right(ts, t)
+            w = (t - ts[i - 1]) / (ts[i] - ts[i - 1])
+            return vs[i - 1] + w * (vs[i] - vs[i - 1])
         return float(np.interp(t, self.times, self.values))
 
     @staticmethod

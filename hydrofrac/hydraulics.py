@@ -209,8 +209,8 @@ class Hydraulics:
 
     def separation_traction(self, t):
         """Eq. (16) on loaded facets, S = 0 elsewhere, as the affine law of the interface
-        kernel: S^1 = -f_p p_h - (1 - f_p) <-s_B^1> = S0 + cS <-s_B^1>, S^2 = 0."""
-        return self._S0_unit * self.params.pressure(t), self._cS
+        kernel: S^1 = -f_p p_h - (1 - f_p) <-s_B^1> = p_h S0 + cS <-s_B^1>, S^2 = 0."""
+        return self._S0_unit, self._cS, self.params.pressure(t)
 
     def on_step(self, solver):
         self.update()

@@ -155,9 +155,10 @@ class Interface:
     Create the solver with ``crack_facets=crack_facet_indices(...)`` so that the bulk
     flux skips them; the interface registers itself in ``solver.extensions``.
 
-    ``separation_traction(t) -> (S0, cS)`` gives the target traction of the separation
-    mode per Gauss point as ``S = S0 + cS <-s_B^1> e_n`` (local components; S0 of shape
-    (nf, nq, 2), cS of shape (nf, nq), either may be None = 0).  The default is
+    ``separation_traction(t) -> (S0, cS[, scale])`` gives the target traction of the
+    separation mode per Gauss point as ``S = scale S0 + cS <-s_B^1> e_n`` (local
+    components; S0 of shape (nf, nq, 2), cS of shape (nf, nq), either may be None = 0;
+    scale defaults to 1).  The default is
     traction-free cracks (S = 0).  Hydraulic loading (:mod:`hydrofrac.hydraulics`, eq. 16)
     replaces it.
     """
@@ -271,6 +272,13 @@ class Interface:
         self._ghost_flux = solver.comm.allreduce(bool(self._ghosted_cells_with_flux), op=MPI.LOR)
         self.last = {}
         self._views = {}
+        self._zero_law = None
+        self._cells = [np.ascontiguousarray(cells[:, side], dtype=np.int64) for side in range(2)]
+        self._no_cells = np.zeros((0, self._dofs[0].shape[1] if nf else len(ref.nodes), 5))
+        # owned cells next to crack facets owned by another rank (they receive its residual)
+        ghost_facets = np.setdiff1d(all_idx, facets)
+        gcells = np.concatenate([c_arr[c_off[f]:c_off[f + 1]] for f in ghost_facets] + [np.zeros(0, np.int32)])
+        self._recv_cells = np.unique(gcells[gcells < nloc]).astype(np.int32)
         # residual entries the interface writes: the cells on both sides of its facets
         # (owned or ghost) and the owned cells receiving other ranks' contributions
         touched_cells = np.unique(np.r_[cells.reshape(-1), self.owned_cells]).astype(np.int64)
@@ -281,10 +289,16 @@ class Interface:
 
     # ------------------------------------------------------------------ kernels
     def _separation(self, t):
-        """(S0 (nf, nq, 2), cS (nf, nq)) of the separation law S = S0 + cS <-s_B^1> e_n."""
+        """(S0 (nf, nq, 2), cS (nf, nq), scale) of the separation law
+        S = scale S0 + cS <-s_B^1> e_n."""
         nf, nq = self.facets.size, self.nq
-        S0, cS = (None, None) if self.separation_traction is None else self.separation_traction(t)
-        return self._full(S0, (nf, nq, 2)), self._full(cS, (nf, nq))
+        if self.separation_traction is None:
+            if self._zero_law is None:
+                self._zero_law = (np.zeros((nf, nq, 2)), np.zeros((nf, nq)), 0.0)
+            return self._zero_law
+        law = self.separation_traction(t)
+        scale = float(law[2]) if len(law) > 2 else 1.0
+        return self._full(law[0], (nf, nq, 2)), self._full(law[1], (nf, nq)), scale
 
     @staticmethod
     def _full(a, shape):
@@ -310,11 +324,11 @@ class Interface:
         reuse one; stored states get their own).
         """
         T = self._buffers() if T is None else T
-        S0, cS = self._separation(t)
+        S0, cS, S_scale = self._separation(t)
         D = np.ascontiguousarray(z[0])
         kernels.interface_targets(
             xloc, self._dofs[0], self._dofs[1], self._phi[0], self._phi[1], self.n, self.Z[0], self.Z[1], self.Zt,
-            self.friction, self.delta_scale, self.v_scale, D, np.ascontiguousarray(z[1]), S0, cS,
+            self.friction, self.delta_scale, self.v_scale, D, np.ascontiguousarray(z[1]), S0, cS, S_scale,
             self.contact.regularized, self.contact.delta0, self.contact.w0,
             0.0 if self.contact.penalty is None else float(self.contact.penalty),
             T["vp"], T["vm"], T["sp"], T["sm"], T["s_B"], T["S"], T["s_star"], T["vp_star"], T["vm_star"],
@@ -341,30 +355,59 @@ class Interface:
             self.last = T
         return T
 
+    def _stage(self, X, t, Rc, nowned):
+        """The compiled pass over the crack facets; returns the state rates."""
+        z = self.stage_state
+        S0, cS, S_scale = self._separation(t)
+        r = self._local(self._r, write=True)  # zero except during a stage
+        rates = np.empty_like(z)
+        d, c = self.damage, self.contact
+        kernels.interface_stage(X, Rc, r, nowned, rates, self._dofs[0], self._dofs[1], self._phi[0], self._phi[1],
+                                self._cells[0], self._cells[1], self.n, self.weights, self.Z[0], self.Z[1], self.Zt,
+                                self.friction, self.delta_scale, self.v_scale, z[0], z[1], S0, cS, S_scale,
+                                c.regularized,
+                                c.delta0, c.w0, 0.0 if c.penalty is None else float(c.penalty), d.beta, d.s_onset,
+                                d.s_bar, self.tau, d.a)
+        return rates
+
+    def _finish(self, out, cells):
+        """Reverse-scatter the dof-vector residual (contributions to ghost cells), apply the
+        inverse mass of ``cells`` to it, add to ``out``, and clear it."""
+        if self._ghost_flux:
+            self._r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        r = self._local(self._r, write=True)
+        if cells.size:
+            kernels.apply_block_inverse(out.array, r, cells, self._all_dofs, self.solver.Mref_inv,
+                                        self.solver.Binv_scaled)
+        r[self._touched] = 0.0
+
+    def stage_cells(self, X, t, Rc):
+        """Matrix-free path (:class:`hydrofrac.matfree.MatrixFreeOperator`): add the flux
+        corrections of the owned cells to its cell residual ``Rc`` before its inverse mass
+        is applied; the rest (ghost cells) waits in the dof-vector residual for
+        :meth:`finish_stage`.  Returns the state rates."""
+        t0 = time.perf_counter()
+        rates = self._stage(X, t, Rc, Rc.shape[0])
+        self.solver.timers.add("interface kernel", time.perf_counter() - t0)
+        return rates
+
+    def finish_stage(self, out):
+        """Matrix-free path: contributions that other ranks computed for owned cells."""
+        t0 = time.perf_counter()
+        if self._ghost_flux:
+            self._finish(out, self._recv_cells)
+        self.solver.timers.add("interface kernel", time.perf_counter() - t0)
+
     def rhs(self, y, t, out):
-        """Add M^{-1} (interface flux terms) into ``out``; return the state rates.
+        """Add M^{-1} (interface flux terms) into ``out``; return the state rates (used with
+        the assembled bulk operator; the matrix-free one calls :meth:`stage_cells`).
 
         One compiled pass over the crack facets (:func:`hydrofrac.kernels.interface_stage`)
         into a residual that is zero outside the cells next to cracks, then (in parallel)
         the reverse scatter of contributions to ghost cells, and the cells' inverse mass."""
         t0 = time.perf_counter()
-        z = self.stage_state
-        S0, cS = self._separation(t)
-        r = self._local(self._r, write=True)  # zero except during this call
-        rates = np.empty_like(z)
-        d, c = self.damage, self.contact
-        kernels.interface_stage(self._local(y), r, rates, self._dofs[0], self._dofs[1], self._phi[0], self._phi[1],
-                                self.n, self.weights, self.Z[0], self.Z[1], self.Zt, self.friction, self.delta_scale,
-                                self.v_scale, z[0], z[1], S0, cS, c.regularized, c.delta0, c.w0,
-                                0.0 if c.penalty is None else float(c.penalty), d.beta, d.s_onset, d.s_bar,
-                                self.tau, d.a)
-        if self._ghost_flux:
-            self._r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        # apply the per-cell inverse mass of the touched owned cells
-        if self.owned_cells.size:
-            kernels.apply_block_inverse(out.array, r, self.owned_cells, self._all_dofs,
-                                        self.solver.Mref_inv, self.solver.Binv_scaled)
-        r[self._touched] = 0.0
+        rates = self._stage(self._local(y), t, self._no_cells, 0)
+        self._finish(out, self.owned_cells)
         self.solver.timers.add("interface kernel", time.perf_counter() - t0)
         return rates
 

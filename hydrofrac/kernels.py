@@ -3,7 +3,7 @@ their Gauss points per Runge-Kutta stage.
 
 * :func:`interface_stage` (one Runge-Kutta stage): per Gauss point, both sides' traces,
   the bonded solution, the separation traction, eta and the combined targets via
-  :func:`hydrofrac.riemann.interface_point` (the one implementation of the formulas);
+  :func:`hydrofrac.riemann.combine_point` (the one implementation of the formulas);
   the flux corrections ``(s* - s).w + (v* - v).(tau n)`` of both sides integrated into a
   residual vector; the state rates (damage, opening, slip);
 * :func:`interface_targets`: the same targets stored per point (output, energy terms);
@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import njit
-from .riemann import (bonded_pt, damage_rate_pt, effective_stress_pt, eta_exact_pt, eta_regularized_pt,
-                      interface_point, macaulay_pt, target_damage_pt)
+from .riemann import (bonded_pt, combine_point, damage_rate_pt, effective_stress_pt, eta_exact_pt,
+                      eta_regularized_pt, macaulay_pt, target_damage_pt)
 
 
 @njit
@@ -43,16 +43,16 @@ def _trace(X, dofs, phi, f, q, nx, ny):
 
 @njit
 def _point(X, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, Zp, Zm, Zt, k, delta_scale, v_scale, D, delta, S0, cS,
-           regularized, delta0, w0, kappa):
+           S_scale, regularized, delta0, w0, kappa):
     """Traces, bonded solution, separation traction, eta and combined targets at Gauss
     point q of facet f.  Returns (vpn, vpt, vmn, vmt, spn, spt, smn, smt, sBn, sBt, Sn, St,
     s*n, s*t, v*+n, v*+t, v*-n, v*-t, gamma, eta, w')."""
     vpn, vpt, spn, spt = _trace(X, dofs_p, phi_p, f, q, nx, ny)
     vmn, vmt, smn, smt = _trace(X, dofs_m, phi_m, f, q, nx, ny)
-    sBn, _ = bonded_pt(vpn, vmn, spn, smn, Zp[f, 0], Zm[f, 0])
-    sBt, _ = bonded_pt(vpt, vmt, spt, smt, Zp[f, 1], Zm[f, 1])
-    Sn = S0[f, q, 0] + cS[f, q] * macaulay_pt(-sBn)
-    St = S0[f, q, 1]
+    sBn, vBn = bonded_pt(vpn, vmn, spn, smn, Zp[f, 0], Zm[f, 0])
+    sBt, vBt = bonded_pt(vpt, vmt, spt, smt, Zp[f, 1], Zm[f, 1])
+    Sn = S_scale * S0[f, q, 0] + cS[f, q] * macaulay_pt(-sBn)
+    St = S_scale * S0[f, q, 1]
     if kappa > 0.0:
         Sn -= kappa * macaulay_pt(-delta[f, q])
     w = 2.0 / Zt[f, 0] * (sBn - Sn) / v_scale[f]  # [[v_S^1]] / v~ (eqs. 11-12)
@@ -63,19 +63,19 @@ def _point(X, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, Zp, Zm, Zt, k, delta_s
         e = eta_regularized_pt(dn, w, delta0, w0)
     else:
         e = eta_exact_pt(dn, w)
-    r = interface_point(vpn, vpt, vmn, vmt, spn, spt, smn, smt, Zp[f, 0], Zp[f, 1], Zm[f, 0], Zm[f, 1],
-                        k[f], D[f, q], e, Sn, St)
+    r = combine_point(vpn, vpt, vmn, vmt, spn, spt, smn, smt, Zp[f, 0], Zp[f, 1], Zm[f, 0], Zm[f, 1],
+                      k[f], D[f, q], e, Sn, St, sBn, vBn, sBt, vBt)
     return (vpn, vpt, vmn, vmt, spn, spt, smn, smt, sBn, sBt, Sn, St, r[0], r[1], r[2], r[3], r[4], r[5], r[6],
             e, w)
 
 
 @njit
 def interface_targets(X, dofs_p, dofs_m, phi_p, phi_m, normal, Zp, Zm, Zt, k, delta_scale, v_scale,
-                      D, delta, S0, cS, regularized, delta0, w0, kappa,
+                      D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa,
                       vp, vm, sp, sm, sB, S, s_star, vp_star, vm_star, eta, gamma, wn):
     """Targets at every Gauss point; outputs (last 12 arguments) are (nf*nq, 2) or (nf*nq,).
 
-    The separation traction is ``S = S0 + cS <-s_B^1> e_n`` (the hydraulic law, eq. 16,
+    The separation traction is ``S = S_scale S0 + cS <-s_B^1> e_n`` (the hydraulic law, eq. 16,
     is of this form; S0 = cS = 0 for traction-free cracks).  ``kappa`` > 0 switches to the
     penalty baseline: eta = 0 and S^1 += -kappa <-delta>."""
     nf, nq = phi_p.shape[0], phi_p.shape[1]
@@ -84,7 +84,7 @@ def interface_targets(X, dofs_p, dofs_m, phi_p, phi_m, normal, Zp, Zm, Zt, k, de
         for q in range(nq):
             i = f * nq + q
             o = _point(X, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, Zp, Zm, Zt, k, delta_scale, v_scale, D, delta,
-                       S0, cS, regularized, delta0, w0, kappa)
+                       S0, cS, S_scale, regularized, delta0, w0, kappa)
             vp[i, 0], vp[i, 1], vm[i, 0], vm[i, 1] = o[0], o[1], o[2], o[3]
             sp[i, 0], sp[i, 1], sm[i, 0], sm[i, 1] = o[4], o[5], o[6], o[7]
             sB[i, 0], sB[i, 1], S[i, 0], S[i, 1] = o[8], o[9], o[10], o[11]
@@ -97,20 +97,22 @@ def interface_targets(X, dofs_p, dofs_m, phi_p, phi_m, normal, Zp, Zm, Zt, k, de
 
 
 @njit
-def interface_stage(X, R, rates, dofs_p, dofs_m, phi_p, phi_m, normal, weights, Zp, Zm, Zt, k, delta_scale,
-                    v_scale, D, delta, S0, cS, regularized, delta0, w0, kappa, beta, s_onset, s_bar, tau, a):
+def interface_stage(X, Rc, r, nowned, rates, dofs_p, dofs_m, phi_p, phi_m, cells_p, cells_m, normal, weights, Zp, Zm,
+                    Zt, k, delta_scale, v_scale, D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa, beta,
+                    s_onset, s_bar, tau, a):
     """One Runge-Kutta stage on the crack facets in one pass: the targets at every Gauss
-    point (as :func:`interface_targets`), their flux corrections added to the residual R
-    (:func:`_flux`), and the state rates (3, nf, nq): damage (eqs. 8-10), normal opening
-    and slip from the target velocity jump [[v*]] = v*- - v*+."""
+    point (as :func:`interface_targets`), their flux corrections added to the residuals
+    (cell-major Rc for cells below ``nowned``, dof vector r otherwise; :func:`_scatter`),
+    and the state rates (3, nf, nq): damage (eqs. 8-10), normal opening and slip from the
+    target velocity jump [[v*]] = v*- - v*+."""
     nf, nq = phi_p.shape[0], phi_p.shape[1]
     for f in range(nf):
         nx, ny = normal[f, 0], normal[f, 1]
         for q in range(nq):
             o = _point(X, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, Zp, Zm, Zt, k, delta_scale, v_scale, D, delta,
-                       S0, cS, regularized, delta0, w0, kappa)
-            _flux(R, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, weights[f, q], o[0], o[1], o[2], o[3], o[4], o[5],
-                  o[6], o[7], o[12], o[13], o[14], o[15], o[16], o[17])
+                       S0, cS, S_scale, regularized, delta0, w0, kappa)
+            _flux(Rc, r, dofs_p, dofs_m, phi_p, phi_m, cells_p, cells_m, nowned, f, q, nx, ny, weights[f, q],
+                  o[0], o[1], o[2], o[3], o[4], o[5], o[6], o[7], o[12], o[13], o[14], o[15], o[16], o[17])
             Dt = target_damage_pt(effective_stress_pt(o[8], o[9], beta), s_onset, s_bar)
             rates[0, f, q] = damage_rate_pt(D[f, q], Dt, tau[f], a)
             rates[1, f, q] = o[16] - o[14]
@@ -118,21 +120,34 @@ def interface_stage(X, R, rates, dofs_p, dofs_m, phi_p, phi_m, normal, weights, 
 
 
 @njit
-def _scatter(R, dofs, phi, f, q, F0, F1, F2, F3, F4):
-    for j in range(phi.shape[2]):
-        a = phi[f, q, j]
-        b = 5 * dofs[f, j]
-        R[b] += a * F0
-        R[b + 1] += a * F1
-        R[b + 2] += a * F2
-        R[b + 3] += a * F3
-        R[b + 4] += a * F4
+def _scatter(Rc, r, dofs, phi, cells, nowned, f, q, F0, F1, F2, F3, F4):
+    """Add one Gauss point's flux to the facet's cell on one side: into the cell-major
+    residual Rc[c, j, :] of the matrix-free operator if the cell is one of its first
+    ``nowned`` (owned) cells, else into the dof-vector residual r."""
+    c = cells[f]
+    if c < nowned:
+        for j in range(phi.shape[2]):
+            a = phi[f, q, j]
+            Rc[c, j, 0] += a * F0
+            Rc[c, j, 1] += a * F1
+            Rc[c, j, 2] += a * F2
+            Rc[c, j, 3] += a * F3
+            Rc[c, j, 4] += a * F4
+    else:
+        for j in range(phi.shape[2]):
+            a = phi[f, q, j]
+            b = 5 * dofs[f, j]
+            r[b] += a * F0
+            r[b + 1] += a * F1
+            r[b + 2] += a * F2
+            r[b + 3] += a * F3
+            r[b + 4] += a * F4
 
 
 @njit
-def _flux(R, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, w, vpn, vpt, vmn, vmt, spn, spt, smn, smt,
-          ssn, sst, vpsn, vpst, vmsn, vmst):
-    """Flux corrections of both sides at one Gauss point (weight w) into R: momentum
+def _flux(Rc, r, dofs_p, dofs_m, phi_p, phi_m, cells_p, cells_m, nowned, f, q, nx, ny, w, vpn, vpt, vmn, vmt,
+          spn, spt, smn, smt, ssn, sst, vpsn, vpst, vmsn, vmst):
+    """Flux corrections of both sides at one Gauss point (weight w) (see :func:`_scatter`): momentum
     ``(s* - s) . w`` and kinematics ``(v* - v) . (tau n)`` with each side's outward normal
     (side +: n, side -: -n; the side - traction is -s*, so both terms change sign)."""
     for side in range(2):
@@ -146,9 +161,9 @@ def _flux(R, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, w, vpn, vpt, vmn, vmt, 
         F0, F1 = w * sgn * dsx, w * sgn * dsy
         F2, F3, F4 = w * dvx * mx, w * dvy * my, w * (dvx * my + dvy * mx)
         if side == 0:
-            _scatter(R, dofs_p, phi_p, f, q, F0, F1, F2, F3, F4)
+            _scatter(Rc, r, dofs_p, phi_p, cells_p, nowned, f, q, F0, F1, F2, F3, F4)
         else:
-            _scatter(R, dofs_m, phi_m, f, q, F0, F1, F2, F3, F4)
+            _scatter(Rc, r, dofs_m, phi_m, cells_m, nowned, f, q, F0, F1, F2, F3, F4)
 
 
 @njit

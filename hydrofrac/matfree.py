@@ -306,9 +306,19 @@ class MatrixFreeOperator:
 
     def apply(self, xloc, out):
         """out (owned values) = M^{-1}(K_vol + K_int) x; ``xloc``: local form incl. ghosts."""
+        self.begin(xloc)
+        self.finish(xloc, out)
+
+    def begin(self, xloc):
+        """Clear the cell residual ``R`` and add the interior facet fluxes; other facet terms
+        (crack interfaces) may be added to ``R[c, j, :]`` (owned cell c, local basis j)
+        before :meth:`finish`."""
         R = self.R
         R[:] = 0.0
         _facet_fluxes(R, xloc, self.dofs, self.fcells, self.fcodes, self.normal, self.length, self.qw,
                       self.tables, self.Zd, self.Zs, self.nowned)
-        _volume_and_inverse(out, R, xloc, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.absdet,
+
+    def finish(self, xloc, out):
+        """out (owned values) = M^{-1} (R + volume terms)."""
+        _volume_and_inverse(out, self.R, xloc, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.absdet,
                             self.Minv_ref, self.Binv)

@@ -127,14 +127,11 @@ def eta_exact_pt(delta_n, w_n):
 
 
 @njit
-def interface_point(vp_n, vp_t, vm_n, vm_t, sp_n, sp_t, sm_n, sm_t, Zp_n, Zp_t, Zm_n, Zm_t,
-                    k, D, eta, S_n, S_t):
-    """The combined target values at one point (eqs. 6-7): bonded(+stick), Coulomb slip
-    and separation with traction S, weighted by D, eta and the stick flag.
-
-    Returns (s*_n, s*_t, v*+_n, v*+_t, v*-_n, v*-_t, gamma)."""
-    sB_n, vB_n = bonded_pt(vp_n, vm_n, sp_n, sm_n, Zp_n, Zm_n)
-    sB_t, vB_t = bonded_pt(vp_t, vm_t, sp_t, sm_t, Zp_t, Zm_t)
+def combine_point(vp_n, vp_t, vm_n, vm_t, sp_n, sp_t, sm_n, sm_t, Zp_n, Zp_t, Zm_n, Zm_t, k, D, eta, S_n, S_t,
+                  sB_n, vB_n, sB_t, vB_t):
+    """The combined target values at one point (eqs. 6-7), given its bonded solution
+    (s_B, v_B): bonded(+stick), Coulomb slip and separation with traction S, weighted by
+    D, eta and the stick flag.  Returns (s*_n, s*_t, v*+_n, v*+_t, v*-_n, v*-_t, gamma)."""
     _, vpS_n, vmS_n = separation_pt(vp_n, vm_n, sp_n, sm_n, Zp_n, Zm_n, S_n)
     _, vpS_t, vmS_t = separation_pt(vp_t, vm_t, sp_t, sm_t, Zp_t, Zm_t, S_t)
     # slip: normal = bonded, tangential = prescribed friction traction
