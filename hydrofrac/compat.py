@@ -114,6 +114,17 @@ def dg_space(mesh, degree, dim=None):
     return dolfinx.fem.FunctionSpace(mesh, el)
 
 
+def cg_vector_space(mesh, degree):
+    """Continuous Lagrange P_degree vector space (the CG baseline; 0.9:
+    ``functionspace(mesh, ("Lagrange", degree, (2,)))``)."""
+    return dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", degree))
+
+
+def boundary_dofs(V, facets):
+    """Local block indices of V's dofs on the given facets."""
+    return dolfinx.fem.locate_dofs_topological(V, V.mesh.topology.dim - 1, facets)
+
+
 def cell_dofs(V):
     """(num_cells incl. ghosts, ndofs_per_cell) block indices of V's dofmap."""
     return V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)
