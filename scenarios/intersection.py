@@ -50,10 +50,13 @@ def pressure_history(p0=CONFINEMENT, peak=P_PEAK, rise=1e-6):
 
 
 # ## Geometry and mesh
-def geometry(x_nf=1.2, nf_length=1.6, perf_length=0.3, path_length=0.6, quick=False, nf_tau=None):
+def geometry(x_nf=1.2, nf_length=1.6, perf_length=0.3, path_length=0.6, quick=False, nf_tau=None,
+             h_crack=None, h_far=None):
     r_w = 0.1
+    h_crack = h_crack or (0.06 if quick else 0.03)
+    h_far = h_far or (0.8 if quick else 0.5)
     dom = Domain(half_width=3.0, half_height=3.0, wellbore_radius=r_w,
-                 h_crack=0.06 if quick else 0.03, h_far=0.8 if quick else 0.5, grading=1.5)
+                 h_crack=h_crack, h_far=h_far, grading=1.5)
     perfs = [Perforation(a, perf_length, width=1e-4) for a in PERF_ANGLES]
     nf = Fracture((x_nf, 0.0), 90.0, nf_length, friction=0.6, tau=nf_tau)
     paths = []
@@ -66,8 +69,8 @@ def geometry(x_nf=1.2, nf_length=1.6, perf_length=0.3, path_length=0.6, quick=Fa
 
 
 def setup(comm=MPI.COMM_WORLD, regularized=True, degree=2, quick=False, x_nf=1.2, tau=30e-6, delta_bar=0.1,
-          nf_tau=1e-3):
-    dom, perfs, nfs, paths = geometry(x_nf=x_nf, quick=quick, nf_tau=nf_tau)
+          nf_tau=1e-3, h_crack=None, h_far=None):
+    dom, perfs, nfs, paths = geometry(x_nf=x_nf, quick=quick, nf_tau=nf_tau, h_crack=h_crack, h_far=h_far)
     return wellbore.build(comm, dom, perfs, nfs, paths, pressure=pressure_history(), regularized=regularized,
                           degree=degree, damage=DamageParams(tau=tau), delta_bar=delta_bar)
 
