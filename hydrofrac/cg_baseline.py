@@ -56,8 +56,16 @@ class CentralDifferenceCG:
         total = self.comm.allreduce(float(d.sum()), op=MPI.SUM)
         self.m = d * (2 * rho * area / total)  # HRZ: diagonal scaled to the total mass (2 components)
         self.ksp = None
+        ext = compat.exterior_facet_indices(mesh)
+        b = compat.boundary_dofs(V, ext)
+        b = b[b < own // 2]
+        self.bdofs = np.stack([2 * b, 2 * b + 1], axis=1).reshape(-1)  # same order as the values
         if mass == "consistent":
             from petsc4py import PETSc
+            # Dirichlet rows and columns of M become identity rows, so that the boundary rows
+            # of K u (which lack the boundary traction) do not pollute the interior
+            rstart = V.dofmap.index_map.local_range[0] * 2
+            M.zeroRowsColumns((self.bdofs + rstart).astype(PETSc.IntType), diag=1.0)
             self.M = M
             self.ksp = PETSc.KSP().create(self.comm)
             self.ksp.setOperators(M)
@@ -68,10 +76,6 @@ class CentralDifferenceCG:
         else:
             M.destroy()
         diag.destroy()
-        ext = compat.exterior_facet_indices(mesh)
-        b = compat.boundary_dofs(V, ext)
-        b = b[b < own // 2]
-        self.bdofs = np.stack([2 * b, 2 * b + 1], axis=1).reshape(-1)  # same order as the values
         X = compat.dof_coordinates(V)[: own // 2].T
         self.Xb = X[:, b]
         self.Xall = X
@@ -92,6 +96,7 @@ class CentralDifferenceCG:
             if self.ksp is None:
                 z = self.Ku.array_r / self.m
             else:
+                self.Ku.array[self.bdofs] = 0.0
                 self.ksp.solve(self.Ku, self.acc)
                 z = self.acc.array_r.copy()
             lam = self.comm.allreduce(float(np.dot(z, z)), op=MPI.SUM) ** 0.5 / \
@@ -117,7 +122,8 @@ class CentralDifferenceCG:
         if self.ksp is None:
             unew.array[:] = 2 * u.array_r - uold.array_r - self.dt ** 2 * self.Ku.array_r / self.m
         else:
-            self.ksp.solve(self.Ku, self.acc)  # M a = K u
+            self.Ku.array[self.bdofs] = 0.0
+            self.ksp.solve(self.Ku, self.acc)  # M a = K u on the interior rows
             unew.array[:] = 2 * u.array_r - uold.array_r - self.dt ** 2 * self.acc.array_r
         self.t += self.dt
         ub = np.asarray(self.u_exact(self.Xb, self.t)).T.reshape(-1)
