@@ -4,6 +4,7 @@
 #   make demo    the regularised crack intersection + figures, charts, animation (2 ranks if 2 cores)
 #   make test    serial tests, then the MPI tests on 2 ranks
 #   make bench   bulk throughput + work-precision benchmark on 1 and 2 ranks, contact stability study
+#   make studies the speed-against-accuracy studies (DG vs CG, crack problems, contact, mesh grading)
 #
 # DOLFINx, PETSc, Gmsh, NumPy, SciPy, numba, matplotlib and ParaView come from
 # Debian 12; the venv sees them (--system-site-packages) and adds pyvista and tqdm.
@@ -30,7 +31,7 @@ TEST_TIMEOUT ?= 1800
 TEST_TIMEOUT_MPI ?= 900
 PYTEST_FLAGS ?=
 
-.PHONY: help setup apt-packages demo gallery test test-serial test-mpi bench
+.PHONY: help setup apt-packages demo gallery test test-serial test-mpi bench studies
 
 help:
 	@sed -n '3,7p' Makefile | sed 's/^# *//'
@@ -105,3 +106,10 @@ bench: setup
 	$(PY) scenarios/benchmark_bulk.py
 	$(MPIRUN) -n 2 $(PY) scenarios/benchmark_bulk.py
 	$(PY) -m hydrofrac.postprocess.study_contact_stability
+
+# the speed-against-accuracy studies (CSV + PNG in postprocess/results; ~10 min on 2 cores)
+studies: setup
+	$(PY) -m hydrofrac.postprocess.study_work_precision
+	$(PY) -m hydrofrac.postprocess.study_work_precision_cracks
+	$(PY) -m hydrofrac.postprocess.study_contact_stability
+	$(MPIRUN) -n 2 $(PY) -m hydrofrac.postprocess.study_mesh_grading
