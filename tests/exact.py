@@ -218,3 +218,17 @@ def signed_peak(comm, values):
 def fitted_slope(h, err):
     """Least-squares slope of log(err) against log(h)."""
     return float(np.polyfit(np.log(h), np.log(err), 1)[0])
+
+
+def westergaard_stress(x, y, a, s_n, tau, s_t):
+    """Exact static stress (sxx, syy, sxy) around a traction-free crack on (-a, a) x {0} in an
+    infinite plate under remote sxx = s_t, syy = s_n, sxy = tau (Westergaard's complex
+    potentials Z = s z / sqrt(z^2 - a^2); the constant s_t - s_n restores the remote sxx)."""
+    z = np.asarray(x) + 1j * np.asarray(y)
+    w = np.sqrt(z - a) * np.sqrt(z + a)  # branch cut on the crack
+    Z = z / w
+    dZ = -a * a / w ** 3
+    sxx = (s_n * Z).real - y * (s_n * dZ).imag + (s_t - s_n) + 2 * (tau * Z).imag + y * (tau * dZ).real
+    syy = (s_n * Z).real + y * (s_n * dZ).imag - y * (tau * dZ).real
+    sxy = -y * (s_n * dZ).real + (tau * Z).real - y * (tau * dZ).imag
+    return sxx, syy, sxy
