@@ -54,8 +54,10 @@ class GrowthParams:
 
 
 def stress_at(solver, points):
-    """Total stress (m, 2, 2) of the solver's state at physical points (m, 2), on all ranks
-    (each point is evaluated by the rank owning its cell; NaN where no cell contains it)."""
+    """Total stress (m, 2, 2) of the solver's state at physical points (m, 2), on all ranks.
+    A point on a facet (e.g. on a crack path ahead of a tip) takes the mean of the cells that
+    contain it, so the result does not depend on cell numbering or partition; NaN where no
+    cell contains the point."""
     g = solver.geometry
     nloc = compat.num_cells_local(solver.mesh)
     X = np.asarray(points, dtype=float).reshape(-1, 2)
@@ -67,16 +69,14 @@ def stress_at(solver, points):
         ref = np.einsum("cij,cj->ci", g.Jinv[:nloc], x - g.x0[:nloc])
         lam = np.c_[1 - ref.sum(axis=1), ref]
         inside = np.flatnonzero(lam.min(axis=1) >= -1e-10)
-        if inside.size:
-            c = inside[0]
+        for c in inside:
             phi = solver.ref.tabulate(ref[c:c + 1])[0]
-            vals = phi @ U[dofs[c]]
-            out[i] = vals[2:5]
-            found[i] = 1.0
+            out[i] += (phi @ U[dofs[c]])[2:5]
+            found[i] += 1.0
     comm = solver.comm
     tot = np.zeros_like(out)
     cnt = np.zeros_like(found)
-    comm.Allreduce(out * found[:, None], tot, op=MPI.SUM)
+    comm.Allreduce(out, tot, op=MPI.SUM)
     comm.Allreduce(found, cnt, op=MPI.SUM)
     with np.errstate(invalid="ignore"):
         s = tot / cnt[:, None]
@@ -178,7 +178,9 @@ def advance_tips(solver, tips, params: GrowthParams, da: float, threshold: float
             continue
         phi = np.arctan2(tip.direction[1], tip.direction[0]) + theta
         d = np.array([np.cos(phi), np.sin(phi)])
-        new_point = tip.point + da * d
+        # snapped to 1 nm: the fields, hence the angle, differ by round-off between runs on
+        # different partitions, and Gmsh meshes a round-off-different geometry differently
+        new_point = np.round(tip.point + da * d, 9)
         moved.append((i, theta, smax, new_point))
         tip.point, tip.direction = new_point, d
     return moved
