@@ -201,3 +201,70 @@ def segment_damage(iface, tag, p0, p1):
     D = iface.state[0].reshape(-1)[sel]
     tot = iface.solver.comm.allreduce(np.array([D.sum(), D.size], dtype=float), op=MPI.SUM)
     return tot[0] / tot[1] if tot[1] else float("nan")
+
+
+class GrowthDriver:
+    """Free crack growth with remeshing, as a ``remesh`` hook of :func:`hydrofrac.run.run`.
+
+    ``build(paths, tags) -> (solver, interface)`` meshes the scene with the growth paths
+    (polylines (k, 2), one per tip, facet tag ``tags[i]``, bonded D = 0 crack) and sets up the
+    solver.  Every ``check_every`` steps the driver evaluates the criterion at the tips whose
+    last segment has mostly debonded (mean D >= ``ready_damage``, default 0.5: the far end of a
+    segment, where the stress is below s̄, may only damage towards D_t < 1); tips where s̆ reaches
+    ``threshold`` advance by ``da`` (all of them at once: one remesh per batch), tips leaving
+    ``inside`` stop.  Then it remeshes, transfers fields and interface state
+    (:mod:`hydrofrac.transfer`) and returns the new solver; otherwise None.
+
+    Remeshes happen only when a tip advanced; ``count`` and the "remesh" timer report them.
+    """
+
+    def __init__(self, build, tips, params: GrowthParams, da: float, threshold: float, tags,
+                 check_every: int = 10, ready_damage: float = 0.5, inside=None):
+        if not da > 0:
+            raise ValueError(f"growth increment da must be > 0 m; got {da}")
+        if check_every < 1:
+            raise ValueError(f"check_every must be >= 1 step; got {check_every}")
+        self.build, self.tips, self.params, self.da, self.threshold = build, tips, params, da, threshold
+        self.tags = list(tags)
+        self.check_every, self.ready_damage, self.inside = check_every, ready_damage, inside
+        self.paths = [[np.asarray(t.point, float).copy()] for t in tips]
+        self.count = 0
+        self.events = []  # (t, tip index, angle [deg], s̆ max)
+        # Old meshes are kept until the driver goes: freeing a DOLFINx 0.5 mesh (with its
+        # function spaces) while the run goes on corrupted memory, found by bisection (a
+        # later numpy write crashed); the cause inside DOLFINx/petsc4py is not pinned down.
+        # A mesh is small next to the fields and operators, which are freed.
+        self._old_meshes = []
+        self.solver, self.iface = build(self._polylines())
+
+    def _polylines(self):
+        keep = [i for i, p in enumerate(self.paths) if len(p) > 1]
+        return [np.array(self.paths[i]) for i in keep], [self.tags[i] for i in keep]
+
+    def __call__(self, solver):
+        if solver.step_count % self.check_every:
+            return None
+        ready = [len(p) < 2 or segment_damage(self.iface, self.tags[i], p[-2], p[-1]) >= self.ready_damage
+                 for i, p in enumerate(self.paths)]
+        before = [(t.point.copy(), t.direction.copy()) for t in self.tips]
+        moved = advance_tips(solver, self.tips, self.params, self.da, self.threshold, ready=ready)
+        grown = []
+        for i, theta, smax, point in moved:
+            if self.inside is not None and not self.inside(point):
+                self.tips[i].point, self.tips[i].direction = before[i]
+                self.tips[i].active = False  # reached the boundary: stops
+                continue
+            self.paths[i].append(point.copy())
+            self.events.append((solver.t, i, float(np.degrees(theta)), smax))
+            grown.append(i)
+        if not grown:
+            return None
+        from .transfer import continue_run, transfer_fields, transfer_interface
+        new_solver, new_iface = self.build(self._polylines())
+        self._old_meshes.append(solver.mesh)
+        transfer_fields(solver, new_solver)
+        continue_run(solver, new_solver)
+        transfer_interface(self.iface, new_iface)
+        self.solver, self.iface = new_solver, new_iface
+        self.count += 1
+        return new_solver

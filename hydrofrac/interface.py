@@ -271,7 +271,6 @@ class Interface:
         self._ghosted_cells_with_flux = np.any(cells >= nloc)
         self._ghost_flux = solver.comm.allreduce(bool(self._ghosted_cells_with_flux), op=MPI.LOR)
         self.last = {}
-        self._views = {}
         self._zero_law = None
         self._cells = [np.ascontiguousarray(cells[:, side], dtype=np.int64) for side in range(2)]
         self._no_cells = np.zeros((0, self._dofs[0].shape[1] if nf else len(ref.nodes), 5))
@@ -336,21 +335,13 @@ class Interface:
         T.update(D=D.reshape(-1), Zp=self._Zq[0], Zm=self._Zq[1])
         return T
 
-    def _local(self, vec, write=False):
-        """View of a ghosted vector's local form (owned + ghost values), cached per
-        vector: the solver's stage vectors are fixed, and the view shares their memory."""
-        key = (vec.handle, write)
-        hit = self._views.get(key)
-        if hit is None or hit[0] is not vec:
-            with vec.localForm() as xl:
-                hit = (vec, xl.array if write else xl.array_r)
-            self._views[key] = hit
-        return hit[1]
-
     def evaluate(self, x, t, store=False, z=None, T=None):
         """Targets at state vector x (ghosts must be current)."""
         z = self.state if z is None else z
-        T = self.targets(self._local(x), z, t, T)
+        # (views of a local form are used only inside its context: petsc4py releases the
+        # array when the view is freed, which must not outlive the restored local form)
+        with x.localForm() as xl:
+            T = self.targets(xl.array_r, z, t, T)
         if store:
             self.last = T
         return T
@@ -359,15 +350,15 @@ class Interface:
         """The compiled pass over the crack facets; returns the state rates."""
         z = self.stage_state
         S0, cS, S_scale = self._separation(t)
-        r = self._local(self._r, write=True)  # zero except during a stage
         rates = np.empty_like(z)
         d, c = self.damage, self.contact
-        kernels.interface_stage(X, Rc, r, nowned, rates, self._dofs[0], self._dofs[1], self._phi[0], self._phi[1],
-                                self._cells[0], self._cells[1], self.n, self.weights, self.Z[0], self.Z[1], self.Zt,
-                                self.friction, self.delta_scale, self.v_scale, z[0], z[1], S0, cS, S_scale,
-                                c.regularized,
-                                c.delta0, c.w0, 0.0 if c.penalty is None else float(c.penalty), d.beta, d.s_onset,
-                                d.s_bar, self.tau, d.a)
+        with self._r.localForm() as rl:  # zero except between a stage and its finish
+            kernels.interface_stage(X, Rc, rl.array, nowned, rates, self._dofs[0], self._dofs[1], self._phi[0],
+                                    self._phi[1], self._cells[0], self._cells[1], self.n, self.weights, self.Z[0],
+                                    self.Z[1], self.Zt, self.friction, self.delta_scale, self.v_scale, z[0], z[1],
+                                    S0, cS, S_scale, c.regularized, c.delta0, c.w0,
+                                    0.0 if c.penalty is None else float(c.penalty), d.beta, d.s_onset, d.s_bar,
+                                    self.tau, d.a)
         return rates
 
     def _finish(self, out, cells):
@@ -375,11 +366,12 @@ class Interface:
         inverse mass of ``cells`` to it, add to ``out``, and clear it."""
         if self._ghost_flux:
             self._r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        r = self._local(self._r, write=True)
-        if cells.size:
-            kernels.apply_block_inverse(out.array, r, cells, self._all_dofs, self.solver.Mref_inv,
-                                        self.solver.Binv_scaled)
-        r[self._touched] = 0.0
+        with self._r.localForm() as rl:
+            r = rl.array
+            if cells.size:
+                kernels.apply_block_inverse(out.array, r, cells, self._all_dofs, self.solver.Mref_inv,
+                                            self.solver.Binv_scaled)
+            r[self._touched] = 0.0
 
     def stage_cells(self, X, t, Rc):
         """Matrix-free path (:class:`hydrofrac.matfree.MatrixFreeOperator`): add the flux
@@ -406,7 +398,8 @@ class Interface:
         into a residual that is zero outside the cells next to cracks, then (in parallel)
         the reverse scatter of contributions to ghost cells, and the cells' inverse mass."""
         t0 = time.perf_counter()
-        rates = self._stage(self._local(y), t, self._no_cells, 0)
+        with y.localForm() as yl:
+            rates = self._stage(yl.array_r, t, self._no_cells, 0)
         self._finish(out, self.owned_cells)
         self.solver.timers.add("interface kernel", time.perf_counter() - t0)
         return rates

@@ -135,14 +135,21 @@ def run(solver: Solver, options: RunOptions, name: str = "solution",
         extra_parts: Optional[Callable[[], Dict]] = None,
         history_extra: Optional[Callable[[], Dict[str, float]]] = None,
         accuracy: Optional[Callable[[Solver], Dict]] = None,
-        on_step: Optional[Callable[[Solver], None]] = None) -> Dict:
+        on_step: Optional[Callable[[Solver], None]] = None,
+        remesh: Optional[Callable[[Solver], Optional[Solver]]] = None) -> Dict:
     """Integrate ``solver`` to ``options.t_end``; returns the summary dictionary.
 
     extra_parts : returns more output parts per frame (e.g. the crack interface)
     history_extra : returns more history columns per row
     accuracy : returns the run's accuracy measures (errors against known answers)
     on_step : called after every step (e.g. crack growth, connectivity updates)
+    remesh : called after every step; returns a new solver (fields and state transferred,
+        e.g. :class:`hydrofrac.growth.GrowthDriver`) to continue with, or None.  Its time is
+        reported as "remesh" in the split and the number of remeshes in the summary.
     """
+    if remesh is not None and options.restart:
+        raise ValueError("--restart is not supported for runs that remesh (crack growth): the checkpoint "
+                         "holds the fields of the last mesh, not its geometry; rerun without --restart")
     comm = solver.comm
     out = Path(options.out)
     if comm.rank == 0:
@@ -208,13 +215,26 @@ def run(solver: Solver, options: RunOptions, name: str = "solution",
     wall0 = time.perf_counter()
     last_progress = last_ckpt = wall0
     step0 = solver.step_count
+    remeshes = 0
+    work = 0.0  # DOF*stages done (the mesh may change)
     try:
         while solver.step_count < nsteps:
             solver.step()
             solver.update_energy()
             solver.check_stability()
+            work += solver.num_dofs * solver.num_stages
             if on_step is not None:
                 on_step(solver)
+            if remesh is not None:
+                t0 = time.perf_counter()
+                new = remesh(solver)
+                if new is not None:
+                    solver = new
+                    nsteps = solver.step_count + max(1, int(math.ceil((options.t_end - solver.t) / solver.dt - 1e-9)))
+                    frame_every = max(1, (nsteps - solver.step_count) // max(1, options.frames - frames_done))
+                    good_x = solver.x.copy()
+                    remeshes += 1
+                    solver.timers.add("remesh", time.perf_counter() - t0)
             solver.x.copy(good_x)
             good = (solver.t, solver.step_count, [e.checkpoint_state() for e in solver.extensions])
             if solver.step_count % options.history_every == 0 or solver.step_count == nsteps:
@@ -263,14 +283,16 @@ def run(solver: Solver, options: RunOptions, name: str = "solution",
         "scenario": name,
         "wall_time_s": wall,
         "setup_time_s": solver.timers.t.get("setup", 0.0),
-        "dof_stages_per_s": solver.num_dofs * solver.num_stages * steps_run / wall if wall > 0 else float("nan"),
-        "dof_stages_per_s_per_rank": (solver.num_dofs * solver.num_stages * steps_run / wall / comm.size
-                                      if wall > 0 else float("nan")),
+        "dof_stages_per_s": work / wall if wall > 0 else float("nan"),
+        "dof_stages_per_s_per_rank": work / wall / comm.size if wall > 0 else float("nan"),
         "energy": solver.energy.as_dict(),
         "time_split_s": {k: comm.allreduce(v, op=compat.MPI.MAX) for k, v in solver.timers.t.items()},
         "output": {"paraview": str(series.pvd_path), "history": str(history_path), "checkpoint": str(ckpt.dir)},
     })
     summary["cost_us"] = unit_costs(solver, steps_run)
+    if remesh is not None:
+        t_rm = solver.timers.t.get("remesh", 0.0)
+        summary["remeshing"] = {"remeshes": remeshes, "wall_s": t_rm, "share": t_rm / wall if wall > 0 else 0.0}
     if accuracy is not None:
         summary["accuracy"] = accuracy(solver)
     if comm.rank == 0:
@@ -320,6 +342,9 @@ def print_summary(s: Dict, file=sys.stdout):
             line += (f", interface kernel {c['interface_per_facet_stage']:.3g} us per crack facet*stage "
                      f"({c['crack_facets']} crack facets)")
         lines.append(line)
+    if "remeshing" in s:
+        r = s["remeshing"]
+        lines.append(f"  remeshing   {r['remeshes']} remeshes, {r['wall_s']:.2f} s ({100 * r['share']:.0f}% of the wall time)")
     for k, v in s.get("accuracy", {}).items():
         lines.append(f"  accuracy    {k} = {v:.4g}" if isinstance(v, float) else f"  accuracy    {k} = {v}")
     lines.append(f"  output      {s['output']['paraview']} (ParaView), {s['output']['history']}")

@@ -95,6 +95,7 @@ class EnergyBudget:
     dissipated_friction: float = 0.0
     dissipated_damage: float = 0.0
     dissipated_relaxation: float = 0.0
+    transfer_loss: float = 0.0  # energy lost by projecting the fields onto new meshes (remeshing)
     inflow_total: float = 0.0  # cumulative positive power in (bound used by the blow-up check)
 
     @property
@@ -105,7 +106,8 @@ class EnergyBudget:
     def balance_error(self):
         """total - (initial + work in - radiated - dissipated), should be ~ time-integration error."""
         expected = (self.initial + self.work_in - self.radiated - self.dissipated_flux
-                    - self.dissipated_friction - self.dissipated_damage - self.dissipated_relaxation)
+                    - self.dissipated_friction - self.dissipated_damage - self.dissipated_relaxation
+                    - self.transfer_loss)
         return self.total - expected
 
     def as_dict(self):
@@ -666,8 +668,12 @@ class Solver:
     def energy_rates(self):
         """(power in at loads, power out at radiating boundaries, upwind dissipation rate on
         interior and exterior facets)."""
-        self.x.copy(self.u.vector)
-        self.u.x.scatter_forward()
+        # copy through the Function's own array (not a PETSc wrapper of it: a wrapper that
+        # outlives its Function corrupts memory when solvers are replaced after a remesh)
+        own = compat.dof_counts(self.V)[0] * ef.NCOMP
+        u_arr = compat.function_array(self.u)
+        u_arr[:own] = self.x.array_r
+        compat.scatter_forward(self.u)
         for tag, (hist, g) in self._hist_const.items():
             g.value = hist(self.t)
         for bc, uext, _ in self.outer:
@@ -680,9 +686,8 @@ class Solver:
                 p_rad -= val
             else:
                 p_in += val
-        if self.matfree is not None:
-            with self.u.vector.localForm() as ul:  # ghosts updated above
-                diss = self.comm.allreduce(self.matfree.dissipation_rate(ul.array_r), op=MPI.SUM)
+        if self.matfree is not None:  # (ghosts updated above)
+            diss = self.comm.allreduce(self.matfree.dissipation_rate(u_arr), op=MPI.SUM)
         else:
             Qx = self._work[-2]
             self.Qd.mult(self.x, Qx)

@@ -106,10 +106,12 @@ def continue_run(old, new):
     :func:`transfer_fields`); returns the total energy before and after the transfer [J/m]
     (the difference is the transfer's interpolation error)."""
     new.t, new.step_count = old.t, old.step_count
+    new.timers = old.timers  # one wall-time split for the whole run
     before = old.energy.total
     new.energy = copy.deepcopy(old.energy)
     new.energy.kinetic, new.energy.strain = new.energies()
-    new._last_rates = None
+    new.energy.transfer_loss += before - new.energy.total  # reported, so the budget still closes
+    new._last_rates = old._last_rates  # the trapezoid of the next step starts from the old rates
     return before, new.energy.total
 
 

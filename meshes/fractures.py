@@ -155,11 +155,16 @@ def check_domain(d: Domain):
 
 def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perforation] = (),
                   fractures: Sequence[Fracture] = (), paths: Sequence[np.ndarray] = (),
-                  out=None, verbose=False) -> FractureMesh:
+                  out=None, verbose=False, path_tags: Optional[Sequence[int]] = None) -> FractureMesh:
     """Mesh a box with a wellbore, perforations, natural fractures and potential paths.
 
-    ``paths`` are polylines (k, 2); every line is validated before Gmsh runs.
+    ``paths`` are polylines (k, 2); every line is validated before Gmsh runs.  ``path_tags``
+    (default ``PATH + k``) fixes each path's facet tag, e.g. so that growing cracks keep
+    their tags from one remesh to the next.
     """
+    path_tags = [PATH + k for k in range(len(paths))] if path_tags is None else [int(t) for t in path_tags]
+    if len(path_tags) != len(paths) or len(set(path_tags)) != len(path_tags):
+        raise ValueError(f"path_tags must be {len(paths)} distinct tags; got {path_tags}")
     check_domain(domain)
     lines = {}
     for i, pf in enumerate(perforations):
@@ -174,7 +179,7 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
         lines[NATURAL + j] = check_polyline(f"natural fracture {j}", fracture_points(fr), domain)
     for k, pth in enumerate(paths):
         pts = np.asarray(pth, dtype=float)
-        lines[PATH + k] = check_polyline(f"potential path {k}", pts, domain,
+        lines[path_tags[k]] = check_polyline(f"potential path {k}", pts, domain,
                                          on_wellbore_start=np.linalg.norm(pts[0]) <= domain.wellbore_radius + 1e-9)
     tips = _tips(lines)
 
@@ -254,7 +259,7 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
     return FractureMesh(mesh, ct, ft,
                         perforations=[PERFORATION + i for i in range(len(perforations))],
                         naturals=[NATURAL + j for j in range(len(fractures))],
-                        paths=[PATH + k for k in range(len(paths))], lines=lines)
+                        paths=list(path_tags), lines=lines)
 
 
 def _tips(lines):

@@ -100,3 +100,28 @@ def test_same_paths_on_one_and_two_ranks():
     ser, _, _ = grow(MPI.COMM_SELF, 2)
     for p, q in zip(par, ser):
         np.testing.assert_allclose(np.array(p), np.array(q), rtol=0, atol=1e-9)
+
+
+def test_crack_growth_scenario_on_one_and_two_ranks(tmp_path, run_command, mpirun):
+    """``scenarios/crack_growth.py --quick`` (crack at 30° in tension, free growth with
+    remeshing): both tips grow, kinking towards the plane normal to the tension; the summary
+    reports the remeshes and their share of the wall time; the energy budget (with the
+    transfer loss of the projections) closes; 1 and 2 ranks grow the same cracks."""
+    import json
+    from pathlib import Path
+    script = Path(__file__).resolve().parents[1] / "scenarios" / "crack_growth.py"
+    s = {}
+    for n in (1, 2):
+        out = tmp_path / f"n{n}"
+        run_command([*mpirun(n), script, "--quick", "--out", out], timeout=600)
+        s[n] = json.loads((out / "summary.json").read_text())
+    acc = s[1]["accuracy"]
+    assert acc["remeshes"] >= 5 and acc["extensions"] >= acc["remeshes"]
+    assert acc["tip0_grown_m"] > 0 and acc["tip1_grown_m"] > 0
+    assert acc["tip0_first_kink_deg"] < -10 and acc["tip1_first_kink_deg"] < -10
+    r = s[1]["remeshing"]
+    assert r["remeshes"] == acc["remeshes"] and 0 < r["share"] < 1
+    assert s[1]["energy"]["transfer_loss"] > 0
+    assert abs(s[1]["energy"]["balance_error_relative"]) < 1e-3
+    for key in ("remeshes", "extensions", "tip0_first_kink_deg", "tip1_first_kink_deg", "tip0_grown_m", "tip1_grown_m"):
+        assert s[2]["accuracy"][key] == pytest.approx(acc[key], rel=1e-9, abs=1e-12), key
