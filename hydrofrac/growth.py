@@ -212,16 +212,19 @@ class GrowthDriver:
     last segment has mostly debonded (mean D >= ``ready_damage``, default 0.5: the far end of a
     segment, where the stress is below s̄, may only damage towards D_t < 1); tips where s̆ reaches
     ``threshold`` advance by ``da`` (all of them at once: one remesh per batch), tips leaving
-    ``inside`` stop.  Then it remeshes, transfers fields and interface state
+    ``inside`` stop.  ``domain_size`` [m], if given, rejects a ``da`` that is not smaller.  Then it remeshes, transfers fields and interface state
     (:mod:`hydrofrac.transfer`) and returns the new solver; otherwise None.
 
     Remeshes happen only when a tip advanced; ``count`` and the "remesh" timer report them.
     """
 
     def __init__(self, build, tips, params: GrowthParams, da: float, threshold: float, tags,
-                 check_every: int = 10, ready_damage: float = 0.5, inside=None):
+                 check_every: int = 10, ready_damage: float = 0.5, inside=None, domain_size=None):
         if not da > 0:
             raise ValueError(f"growth increment da must be > 0 m; got {da}")
+        if domain_size is not None and not da < domain_size:
+            raise ValueError(f"growth increment da = {da} m is not smaller than the domain ({domain_size} m); "
+                             "use a da of a few crack-facet sizes")
         if check_every < 1:
             raise ValueError(f"check_every must be >= 1 step; got {check_every}")
         self.build, self.tips, self.params, self.da, self.threshold = build, tips, params, da, threshold

@@ -227,7 +227,18 @@ def run(solver: Solver, options: RunOptions, name: str = "solution",
                 on_step(solver)
             if remesh is not None:
                 t0 = time.perf_counter()
-                new = remesh(solver)
+                try:
+                    new = remesh(solver)
+                except Exception as err:  # e.g. Gmsh cannot mesh the extended geometry
+                    series.write(solver.t, parts())
+                    ckpt.save(solver, series, frames_done + 1)
+                    msg = (f"[hydrofrac] remeshing after crack growth failed at t = {solver.t:.6g} s: {err}\n"
+                           f"[hydrofrac] stopped. The last good state (before the extension) is in "
+                           f"{series.pvd_path} and {ckpt.dir}")
+                    log(comm, msg)
+                    if hist_file is not None:
+                        hist_file.close()
+                    raise RuntimeError(msg) from err
                 if new is not None:
                     solver = new
                     nsteps = solver.step_count + max(1, int(math.ceil((options.t_end - solver.t) / solver.dt - 1e-9)))

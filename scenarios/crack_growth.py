@@ -66,7 +66,7 @@ def main(argv=None):
     margin = half - 2 * h
     driver = GrowthDriver(make_builder(comm, args.angle, h, half, args.degree or 2), tips,
                           GrowthParams(r=4 * h), da=2 * h, threshold=DAMAGE.s_onset, tags=[PATH, PATH + 1],
-                          inside=lambda p: abs(p[0]) < margin and abs(p[1]) < margin)
+                          inside=lambda p: abs(p[0]) < margin and abs(p[1]) < margin, domain_size=2 * half)
 
     def history():
         length = sum(float(np.linalg.norm(np.diff(np.array(p), axis=0), axis=1).sum()) for p in driver.paths)

@@ -125,3 +125,30 @@ def test_crack_growth_scenario_on_one_and_two_ranks(tmp_path, run_command, mpiru
     assert abs(s[1]["energy"]["balance_error_relative"]) < 1e-3
     for key in ("remeshes", "extensions", "tip0_first_kink_deg", "tip1_first_kink_deg", "tip0_grown_m", "tip1_grown_m"):
         assert s[2]["accuracy"][key] == pytest.approx(acc[key], rel=1e-9, abs=1e-12), key
+
+
+def test_growth_bad_input_and_failed_remesh(tmp_path):
+    """A da that is not positive or not smaller than the domain is rejected before the run;
+    a remesh that fails after an extension stops the run with the last good state written."""
+    from hydrofrac.growth import GrowthDriver
+    from hydrofrac.run import RunOptions, run
+    tips = [Tip(np.array([A, 0.0]), np.array([1.0, 0.0])), Tip(np.array([-A, 0.0]), np.array([-1.0, 0.0]))]
+    calls = []
+
+    def build(polylines):
+        calls.append(polylines)
+        if len(calls) > 1:
+            raise RuntimeError("Gmsh could not mesh the extended geometry (test)")
+        return globals()["build"](polylines[0], MPI.COMM_WORLD)
+
+    for bad in (0.0, -0.1, 20.0):
+        with pytest.raises(ValueError, match="da"):
+            GrowthDriver(build, tips, GrowthParams(r=4 * H), da=bad, threshold=DAMAGE.s_onset,
+                         tags=[PATH, PATH + 1], domain_size=16.0)
+    calls.clear()
+    driver = GrowthDriver(build, tips, GrowthParams(r=4 * H), da=2 * H, threshold=DAMAGE.s_onset,
+                          tags=[PATH, PATH + 1], check_every=5, domain_size=16.0)
+    with pytest.raises(RuntimeError, match="remeshing after crack growth failed") as info:
+        run(driver.solver, RunOptions(t_end=1e-3, out=tmp_path, frames=4), name="g", remesh=driver)
+    assert "last good state" in str(info.value)
+    assert (tmp_path / "g.pvd").exists() and (tmp_path / "checkpoint").exists()
