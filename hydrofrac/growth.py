@@ -212,14 +212,18 @@ class GrowthDriver:
     last segment has mostly debonded (mean D >= ``ready_damage``, default 0.5: the far end of a
     segment, where the stress is below s̄, may only damage towards D_t < 1); tips where s̆ reaches
     ``threshold`` advance by ``da`` (all of them at once: one remesh per batch), tips leaving
-    ``inside`` stop.  ``domain_size`` [m], if given, rejects a ``da`` that is not smaller.  Then it remeshes, transfers fields and interface state
+    ``inside`` stop.  ``domain_size`` [m], if given, rejects a ``da`` that is not smaller.
+    A new segment that crosses another crack (one of the ``obstacles`` polylines, e.g.
+    natural fractures, or another growth path) ends on it and its tip stops: the crack joins
+    that one (the mesh shares the vertex, so union-find merges their networks).  Then it remeshes, transfers fields and interface state
     (:mod:`hydrofrac.transfer`) and returns the new solver; otherwise None.
 
     Remeshes happen only when a tip advanced; ``count`` and the "remesh" timer report them.
     """
 
     def __init__(self, build, tips, params: GrowthParams, da: float, threshold: float, tags,
-                 check_every: int = 10, ready_damage: float = 0.5, inside=None, domain_size=None):
+                 check_every: int = 10, ready_damage: float = 0.5, inside=None, domain_size=None,
+                 obstacles=()):
         if not da > 0:
             raise ValueError(f"growth increment da must be > 0 m; got {da}")
         if domain_size is not None and not da < domain_size:
@@ -230,6 +234,8 @@ class GrowthDriver:
         self.build, self.tips, self.params, self.da, self.threshold = build, tips, params, da, threshold
         self.tags = list(tags)
         self.check_every, self.ready_damage, self.inside = check_every, ready_damage, inside
+        self.obstacles = [np.asarray(o, float) for o in obstacles]
+        self.joined = []  # (t, tip index, point)
         self.paths = [[np.asarray(t.point, float).copy()] for t in tips]
         self.count = 0
         self.events = []  # (t, tip index, angle [deg], s̆ max)
@@ -244,6 +250,24 @@ class GrowthDriver:
         keep = [i for i, p in enumerate(self.paths) if len(p) > 1]
         return [np.array(self.paths[i]) for i in keep], [self.tags[i] for i in keep]
 
+    def _first_crossing(self, p, q, me):
+        """First point where segment p -> q meets an obstacle or another tip's path."""
+        lines = list(self.obstacles) + [np.array(pth) for j, pth in enumerate(self.paths) if j != me and len(pth) > 1]
+        best, best_s = None, np.inf
+        d = q - p
+        for line in lines:
+            for a, b in zip(line[:-1], line[1:]):
+                e = b - a
+                den = d[0] * e[1] - d[1] * e[0]
+                if abs(den) < 1e-14:
+                    continue
+                w = a - p
+                s_ = (w[0] * e[1] - w[1] * e[0]) / den  # along p -> q
+                u = (w[0] * d[1] - w[1] * d[0]) / den   # along a -> b
+                if 1e-9 < s_ <= 1 + 1e-12 and -1e-12 <= u <= 1 + 1e-12 and s_ < best_s:
+                    best, best_s = p + s_ * d, s_
+        return best
+
     def __call__(self, solver):
         if solver.step_count % self.check_every:
             return None
@@ -257,6 +281,12 @@ class GrowthDriver:
                 self.tips[i].point, self.tips[i].direction = before[i]
                 self.tips[i].active = False  # reached the boundary: stops
                 continue
+            hit = self._first_crossing(self.paths[i][-1], point, i)
+            if hit is not None:
+                point = np.round(hit, 9)
+                self.tips[i].point = point
+                self.tips[i].active = False  # joined another crack
+                self.joined.append((solver.t, i, point.copy()))
             self.paths[i].append(point.copy())
             self.events.append((solver.t, i, float(np.degrees(theta)), smax))
             grown.append(i)

@@ -32,13 +32,14 @@ def radial_paths(domain: Domain, perforations: Sequence[Perforation], lengths: S
 def build(comm=MPI.COMM_WORLD, domain: Domain = Domain(), perforations: Sequence[Perforation] = (),
           fractures: Sequence[Fracture] = (), paths=(), pressure: PiecewiseLinear = None, regularized=True,
           degree=2, damage: DamageParams = DamageParams(), contact: ContactParams = ContactParams(),
-          delta_bar=0.1, path_friction=0.6, p0=CONFINEMENT, material=ROCK, out=None):
+          delta_bar=0.1, path_friction=0.6, p0=CONFINEMENT, material=ROCK, out=None, path_tags=None):
     """Mesh, solver, interface and hydraulics of a wellbore problem.
 
     Perforations are open (opening = width) hydraulic sources, natural fractures
     are closed pre-existing cracks (D = 1) and paths are intact interfaces (D = 0).
     """
-    fm = fracture_mesh(comm, domain, perforations=perforations, fractures=fractures, paths=paths, out=out)
+    fm = fracture_mesh(comm, domain, perforations=perforations, fractures=fractures, paths=paths, out=out,
+                       path_tags=path_tags)
     sigma0 = -p0 * np.eye(2)
     cracks = ([Crack(t, friction=0.0, damage=1.0, opening=p.width) for t, p in zip(fm.perforations, perforations)]
               + [Crack(t, friction=f.friction, damage=1.0, tau=f.tau) for t, f in zip(fm.naturals, fractures)]

@@ -41,7 +41,9 @@ def run_case(h_crack, h_far):
     t0 = time.perf_counter()
     solver, iface, hyd, fm = ix.setup(comm, regularized=True, h_crack=h_crack, h_far=h_far)
     setup = time.perf_counter() - t0
-    mon = ix.Monitor(solver, iface, hyd, fm.naturals)
+    scene = ix.Scene()
+    scene.set(solver, iface, hyd, fm)
+    mon = ix.Monitor(scene, fm.naturals)
     comm.barrier()
     t0 = time.perf_counter()
     solver.update_energy()

@@ -80,26 +80,39 @@ def setup(comm=MPI.COMM_WORLD, regularized=True, degree=2, quick=False, x_nf=1.2
 # of it carries load (f_p-weighted length), and, more than 0.25 m away from the
 # junction, the peak particle velocity of its faces (|v*±|) and the peak opening
 # rate (normal velocity jump).
+class Scene:
+    """The current mesh's objects (replaced when a growing crack remeshes)."""
+
+    def set(self, solver, iface, hyd, fm):
+        self.solver, self.iface, self.hyd, self.fm = solver, iface, hyd, fm
+
+
 class Monitor:
-    def __init__(self, solver, iface, hyd, nf_tags):
-        self.s, self.iface, self.hyd = solver, iface, hyd
-        self.on_nf = np.isin(iface.crack_tag, nf_tags)
-        self.nf_length = solver.comm.allreduce(float(iface.weights[self.on_nf].sum()), op=MPI.SUM)
+    def __init__(self, scene, nf_tags):
+        self.scene, self.nf_tags = scene, list(nf_tags)
+        iface = scene.iface
+        on_nf = np.isin(iface.crack_tag, self.nf_tags)
+        self.nf_length = scene.solver.comm.allreduce(float(iface.weights[on_nf].sum()), op=MPI.SUM)
         self.t_intersection = None
         self.far = 0.25  # m from the junction for the velocity-spike measure
         self.rows = []
 
+    @property
+    def hyd(self):
+        return self.scene.hyd
+
     def __call__(self, solver):
-        self.hyd.on_step(solver)
+        iface, hyd = self.scene.iface, self.scene.hyd
+        hyd.on_step(solver)
         comm = solver.comm
-        nf = self.on_nf
-        loaded_nf = comm.allreduce(bool(self.hyd.loaded[nf].any()), op=MPI.LOR)
+        nf = np.isin(iface.crack_tag, self.nf_tags)
+        loaded_nf = comm.allreduce(bool(hyd.loaded[nf].any()), op=MPI.LOR)
         if loaded_nf and self.t_intersection is None:
             self.t_intersection = solver.t
-        T = self.iface.last
-        nq = self.iface.nq
+        T = iface.last
+        nq = iface.nq
         # away from the junction (y = 0): the unregularised load hits the whole fracture at once
-        far = np.abs(self.iface.points[..., 1]).reshape(-1) > self.far
+        far = np.abs(iface.points[..., 1]).reshape(-1) > self.far
         sel = np.repeat(nf, nq) & far
         peaks = np.zeros(2)
         if sel.any():
@@ -108,12 +121,12 @@ class Monitor:
             peaks[1] = max(np.linalg.norm(T["vp_star"][sel], axis=1).max(),
                            np.linalg.norm(T["vm_star"][sel], axis=1).max())
         comm.Allreduce(MPI.IN_PLACE, peaks, op=MPI.MAX)
-        lf = comm.allreduce(float((self.hyd.fp_q[nf] * self.iface.weights[nf]).sum()), op=MPI.SUM)
-        net = comm.allreduce(float((self.hyd.network[:, None] * self.iface.weights).sum()), op=MPI.SUM)
+        lf = comm.allreduce(float((hyd.fp_q[nf] * iface.weights[nf]).sum()), op=MPI.SUM)
+        net = comm.allreduce(float((hyd.network[:, None] * iface.weights).sum()), op=MPI.SUM)
         self.rows.append((solver.t, lf, peaks[0], net, peaks[1]))
 
     def history(self):
-        t, lf, vmax, net, vpart = self.rows[-1] if self.rows else (self.s.t, 0.0, 0.0, 0.0, 0.0)
+        t, lf, vmax, net, vpart = self.rows[-1] if self.rows else (self.scene.solver.t, 0.0, 0.0, 0.0, 0.0)
         return {"p_h": self.hyd.params.pressure(t), "nf_loaded_length": lf, "nf_peak_opening_rate": vmax,
                 "nf_peak_velocity": vpart, "network_length": net}
 
@@ -132,6 +145,41 @@ class Monitor:
         return out
 
 
+# ## Free growth (``--growth``, experimental)
+# Instead of pre-meshed paths, every perforation tip grows where the maximum effective
+# stress sends it (``hydrofrac.growth.GrowthDriver``): Δa = 2h, sampled at r = 4h, a tip
+# advances once its last segment has mostly debonded; Gmsh remeshes and the state moves to
+# the new mesh.  A tip that reaches the natural fracture (or another path) joins it and
+# stops.  Measured at --quick: the first extensions (50-100 µs, while the wellbore's
+# pressure wave passes the tips) go to the edge of the sampling window (±85°), and the
+# cracks curl instead of running out radially; the pre-meshed paths stay the default.
+def growth_driver(scene, regularized, degree, args):
+    from hydrofrac.growth import GrowthDriver, GrowthParams, Tip
+    from hydrofrac.meshes.fractures import PATH, fracture_points
+    comm = MPI.COMM_WORLD
+    dom, perfs, nfs, _ = geometry(x_nf=args.x_nf, quick=args.quick, nf_tau=args.nf_tau)
+    damage = DamageParams(tau=args.tau)
+
+    def build(polylines):
+        paths, tags = polylines
+        solver, iface, hyd, fm = wellbore.build(comm, dom, perfs, nfs, paths, pressure=pressure_history(),
+                                                regularized=regularized, degree=degree, damage=damage,
+                                                delta_bar=0.1, path_tags=tags)
+        scene.set(solver, iface, hyd, fm)
+        return solver, iface
+
+    tips = []
+    for pf in perfs:
+        d = np.array([np.cos(np.radians(pf.angle)), np.sin(np.radians(pf.angle))])
+        tips.append(Tip((dom.wellbore_radius + pf.length) * d, d))
+    h = dom.h_crack
+    margin = dom.half_width - 2 * h
+    return GrowthDriver(build, tips, GrowthParams(r=4 * h), da=2 * h, threshold=damage.s_onset,
+                        tags=[PATH + k for k in range(len(tips))], domain_size=2 * dom.half_width,
+                        inside=lambda p: abs(p[0]) < margin and abs(p[1]) < margin,
+                        obstacles=[fracture_points(nf) for nf in nfs])
+
+
 def main(argv=None, regularized=None):
     parser = scenario_parser("Hydraulic fracture intersecting a natural fracture (paper §3.1)")
     g = parser.add_mutually_exclusive_group()
@@ -147,19 +195,34 @@ def main(argv=None, regularized=None):
                              "scale delta~ = tau~ s_bar / Z~, hence the pressure-factor aperture delta_bar' delta~ "
                              "(default 1 ms: 27 µm; the load front then crosses the fracture in a few hundred µs, "
                              "as in the paper's fig. 8-9)")
+    parser.add_argument("--growth", action="store_true",
+                        help="EXPERIMENTAL: free crack growth from the perforation tips with remeshing, instead "
+                             "of the pre-meshed paths (the tips kink at their first extensions, in the early "
+                             "transient: see the README)")
     args = parser.parse_args(argv)
     reg = args.reg if regularized is None else regularized
     name = "intersection_regularized" if reg else "intersection_unregularized"
-    solver, iface, hyd, fm = setup(regularized=reg, degree=args.degree or 2, quick=args.quick, x_nf=args.x_nf,
-                                   tau=args.tau, nf_tau=args.nf_tau)
-    mon = Monitor(solver, iface, hyd, fm.naturals)
+    degree = args.degree or 2
+    scene, driver = Scene(), None
+    if not args.growth:
+        scene.set(*setup(regularized=reg, degree=degree, quick=args.quick, x_nf=args.x_nf, tau=args.tau,
+                         nf_tau=args.nf_tau))
+    else:
+        driver = growth_driver(scene, reg, degree, args)
+    mon = Monitor(scene, scene.fm.naturals)
     t_end = args.t_end or (1.0e-3 if not args.quick else 1.0e-3)
     opts = RunOptions(t_end=t_end, out=args.out or f"results/{name}", frames=args.frames or 40,
                       restart=args.restart, history_every=1)
-    summary = run(solver, opts, name=name, extra_parts=iface.part, on_step=mon, history_extra=mon.history,
-                  accuracy=lambda s: mon.accuracy())
+
+    def accuracy(s):
+        acc = mon.accuracy()
+        if driver is not None:
+            acc.update(remeshes=driver.count, extensions=len(driver.events), joined=len(driver.joined))
+        return acc
+    summary = run(scene.solver, opts, name=name, extra_parts=lambda: scene.iface.part(), on_step=mon,
+                  history_extra=mon.history, accuracy=accuracy, remesh=driver)
     acc = summary["accuracy"]
-    log(solver.comm, f"[{name}] intersection at t = {acc['intersection_time'] * 1e6:.1f} µs; "
+    log(scene.solver.comm, f"[{name}] intersection at t = {acc['intersection_time'] * 1e6:.1f} µs; "
                      f"loaded length of the natural fracture at the end {acc['nf_loaded_length_final']:.3f} m "
                      f"of {acc['nf_length']:.3f} m")
     return summary
