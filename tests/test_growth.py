@@ -92,3 +92,15 @@ def test_mixed_mode_kink_angle():
 def test_growth_params_bad_input(kw, word):
     with pytest.raises(ValueError, match=word):
         GrowthParams(**kw)
+
+
+def test_tip_joins_the_first_crack_it_reaches():
+    """A new segment that crosses a natural fracture (or another growth path) ends on it."""
+    from hydrofrac.growth import GrowthDriver, Tip
+    tips = [Tip(np.array([0.5, 0.0]), np.array([1.0, 0.0])), Tip(np.array([0.0, 1.0]), np.array([0.0, 1.0]))]
+    d = GrowthDriver(lambda polylines: (None, None), tips, GrowthParams(r=0.1), da=0.2, threshold=1.0,
+                     tags=[300, 301], obstacles=[np.array([[1.0, -1.0], [1.0, 1.0]]), np.array([[0.8, -1.0], [0.8, -0.5]])])
+    np.testing.assert_allclose(d._first_crossing(np.array([0.5, 0.0]), np.array([1.5, 0.0]), 0), [1.0, 0.0])
+    assert d._first_crossing(np.array([0.5, 0.0]), np.array([0.9, 0.0]), 0) is None  # stops short
+    d.paths[1] = [np.array([0.7, 0.5]), np.array([0.7, -0.5])]  # another tip's path in the way
+    np.testing.assert_allclose(d._first_crossing(np.array([0.5, 0.0]), np.array([1.5, 0.0]), 0), [0.7, 0.0])
