@@ -22,6 +22,7 @@ import numpy as np
 from . import compat
 from ._jit import njit
 from .element import line_quadrature, triangle_quadrature
+from .kernels import kron_inverse
 from .riemann import bonded_pt
 
 _REF_VERTICES = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
@@ -36,6 +37,7 @@ def _volume_and_inverse(out, R, X, dofs, ncells, S0, S1, Jinv, absdet, Minv_ref,
     g1 = np.empty((nb, 5))
     r = np.empty((nb, 5))
     tmp = np.empty((nb, 5))
+    res = np.empty((nb, 5))
     for c in range(ncells):
         for j in range(nb):
             base = 5 * dofs[c, j]
@@ -67,21 +69,11 @@ def _volume_and_inverse(out, R, X, dofs, ncells, S0, S1, Jinv, absdet, Minv_ref,
             r[i, 2] = R[c, i, 2] + d * dx_vx
             r[i, 3] = R[c, i, 3] + d * dy_vy
             r[i, 4] = R[c, i, 4] + d * (dy_vx + dx_vy)
-        # M_c^{-1} = Minv_ref kron Binv[c]
-        tmp[:] = 0.0
-        for a in range(nb):
-            for b in range(nb):
-                m = Minv_ref[a, b]
-                for k in range(5):
-                    tmp[a, k] += m * r[b, k]
-        B = Binv[c]
+        kron_inverse(r, Minv_ref, Binv[c], tmp, res)  # M_c^{-1} = Minv_ref kron Binv[c]
         for a in range(nb):
             base = 5 * dofs[c, a]
             for k in range(5):
-                acc = 0.0
-                for l in range(5):
-                    acc += B[k, l] * tmp[a, l]
-                out[base + k] = acc
+                out[base + k] = res[a, k]
 
 
 @njit

@@ -276,3 +276,13 @@ def opening_floor(run: Run, stats: Optional[Dict[str, np.ndarray]] = None) -> Tu
         if low < 0:
             return -low, "lowest opening in the frames (taken as the floor δ'₀δ̃)"
     return None, "not known (no negative opening in the frames, no opening_floor in summary.json)"
+
+
+def write_csv(path, rows):
+    """Rows (dicts with the same keys) as CSV, floats with 6 significant digits: the
+    benchmark and study tables in ``postprocess/results``."""
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})

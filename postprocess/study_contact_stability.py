@@ -33,7 +33,6 @@ Riemann contact keeps the bulk CFL step for every delta'_0, with penetration
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +41,7 @@ from mpi4py import MPI
 from hydrofrac import ROCK, compat
 from hydrofrac.boundary import Symmetry
 from hydrofrac.interface import ContactParams, Crack, Interface, crack_facet_indices
+from hydrofrac.postprocess.rundata import write_csv
 from hydrofrac.solver import BlowUpError, Solver
 
 CRACK, SIDES = 10, 1
@@ -146,11 +146,7 @@ def main(argv=None):
         return rows
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    with open(out / "contact_stability.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        for row in rows:
-            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+    write_csv(out / "contact_stability.csv", rows)
     for row in rows:
         print(f"[study] {row['method']:19s} {row['parameter']:9.3g}: largest stable dt {row['stable_dt']:.3g} s "
               f"({row['stable_dt'] / dt_cfl:.3g} x the bulk CFL step), penetration {row['penetration']:.3g} m, "

@@ -18,12 +18,13 @@ Writes ``mesh_grading.csv`` into ``postprocess/results`` (``--out``).
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 import time
 from pathlib import Path
 
 from mpi4py import MPI
+
+from hydrofrac.postprocess.rundata import write_csv
 
 CASES = [  # name, h_crack, h_far
     ("graded, h = 3 cm (reference)", 0.03, 0.5),
@@ -81,11 +82,7 @@ def main(argv=None):
     if comm.rank == 0:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-        with open(out / "mesh_grading.csv", "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            for r in rows:
-                w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+        write_csv(out / "mesh_grading.csv", rows)
         for r in rows:
             print(f"[study] {r['case']:30s} wall {r['wall_s']:7.1f} s  intersection error "
                   f"{r['intersection_time_error'] * 1e6:+6.1f} µs  loaded-length error {r['loaded_length_error']:+.3f} m",

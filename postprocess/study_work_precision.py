@@ -24,7 +24,6 @@ Writes ``work_precision_cg.csv`` and ``work_precision_cg.png`` into ``postproces
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 from pathlib import Path
 
@@ -37,6 +36,7 @@ from hydrofrac import ROCK, compat
 from hydrofrac.boundary import OuterState
 from hydrofrac.cg_baseline import CentralDifferenceCG, energy_norm_error, timed_steps
 from hydrofrac.forms import elastodynamics as ef
+from hydrofrac.postprocess.rundata import write_csv
 from hydrofrac.solver import Solver
 
 DIRECTION = np.array([math.cos(0.3), math.sin(0.3)])
@@ -181,11 +181,7 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     for r in rows:
         r["ranks"] = comm.size
-    with open(out / "work_precision_cg.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+    write_csv(out / "work_precision_cg.csv", rows)
     plot(rows, out / "work_precision_cg.png")
     for target in (1e-2, 1e-3):
         dg = wall_at([r for r in rows if r["family"] == "DG"], target)

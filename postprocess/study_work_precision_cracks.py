@@ -19,12 +19,13 @@ a contact algorithm or doubled nodes, which it does not have).  Writes
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 import time
 from pathlib import Path
 
 from mpi4py import MPI
+
+from hydrofrac.postprocess.rundata import write_csv
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scenarios"))
 
@@ -67,14 +68,6 @@ def sneddon_case(p, h):
     acc = sn.opening_error(solver, iface, 1.0, 1.0e6)
     return {"p": p, "size": h, "dofs": solver.num_dofs, "steps": solver.step_count, "wall_s": wall,
             "opening_rel_error": acc["opening_L2_rel_error"]}
-
-
-def write(rows, path):
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
 
 
 def plot(bars, sned, png):
@@ -124,8 +117,8 @@ def main(argv=None):
     if comm.rank == 0:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-        write(bars, out / "work_precision_bars.csv")
-        write(sned, out / "work_precision_sneddon.csv")
+        write_csv(out / "work_precision_bars.csv", bars)
+        write_csv(out / "work_precision_sneddon.csv", sned)
         plot(bars, sned, out / "work_precision_cracks.png")
         print(f"[study] wrote {out}/work_precision_bars.csv, work_precision_sneddon.csv, work_precision_cracks.png",
               flush=True)

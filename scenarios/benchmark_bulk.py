@@ -53,7 +53,6 @@
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import time
 from pathlib import Path
@@ -63,6 +62,7 @@ from mpi4py import MPI
 
 from hydrofrac import ROCK, compat
 from hydrofrac.boundary import OuterState
+from hydrofrac.postprocess.rundata import write_csv
 from hydrofrac.solver import TABLEAUX, Solver
 # -
 
@@ -223,14 +223,6 @@ def work_precision_case(comm, p, N):
 
 
 # ## Output
-
-def write_csv(path: Path, rows):
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-
 
 def plot_work_precision(rows, png: Path, ranks: int):
     import matplotlib
