@@ -32,13 +32,15 @@ class GrowthParams:
     the samples within this window around the best sample (0: the three-point parabola).  The
     criterion is flat near its maximum (mode I: s̆ ∝ cos²(θ/2), 0.03 % below the peak at 2°),
     so the fit over many samples keeps the direction from following local noise of the
-    discrete near-tip field."""
+    discrete near-tip field.  A maximum within ``edge_margin`` [deg] of the window's edge is
+    not acted on (the tip waits): the field there is not the tip's own."""
 
     r: float
     n_angles: int = 121
     max_angle: float = 85.0
     beta: float = 1.0
     fit_window: float = 30.0
+    edge_margin: float = 5.0
 
     def __post_init__(self):
         if not self.r > 0:
@@ -175,6 +177,10 @@ def advance_tips(solver, tips, params: GrowthParams, da: float, threshold: float
             continue
         theta, smax = growth_direction(solver, tip.point, tip.direction, params)
         if not smax >= threshold:
+            continue
+        if abs(np.degrees(theta)) > params.max_angle - params.edge_margin:
+            # the maximum sits at the edge of the sampled window: the field there is not the
+            # tip's (e.g. a passing wave); wait for a maximum inside the window
             continue
         phi = np.arctan2(tip.direction[1], tip.direction[0]) + theta
         d = np.array([np.cos(phi), np.sin(phi)])
