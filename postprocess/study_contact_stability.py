@@ -32,19 +32,19 @@ Riemann contact keeps the bulk CFL step for every delta'_0, with penetration
 """
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
 
-from hydrofrac import ROCK, compat
+from hydrofrac import ROCK
 from hydrofrac.boundary import Symmetry
 from hydrofrac.interface import ContactParams, Crack, Interface, crack_facet_indices
 from hydrofrac.postprocess.rundata import write_csv
+from hydrofrac.postprocess.study_common import scenario, study_parser
 from hydrofrac.solver import BlowUpError, Solver
 
-CRACK, SIDES = 10, 1
+CRACK, SIDES = scenario("two_bars").CRACK, scenario("two_bars").SIDES
 L, V0 = 1.0, 1.0
 T_WINDOW = 100e-6
 KAPPAS = (1e11, 1e12, 1e13, 1e14, 1e15)
@@ -52,13 +52,8 @@ DELTA0S = (-1e-1, -1e-2, -1e-3, -1e-4)
 
 
 def bars(comm, nx):
-    h = 2 * L / nx
-    mesh = compat.create_rectangle(comm, (-L, 0.0), (L, h), nx, 1)
-    crack = compat.locate_facets(mesh, lambda x: np.isclose(x[0], 0.0))
-    sides = np.r_[compat.locate_boundary_facets(mesh, lambda x: np.isclose(x[1], 0.0)),
-                  compat.locate_boundary_facets(mesh, lambda x: np.isclose(x[1], h))]
-    tags = compat.meshtags(mesh, 1, np.r_[crack, sides], np.r_[np.full(crack.size, CRACK), np.full(sides.size, SIDES)])
-    return mesh, tags
+    """The two-bar strip of ``scenarios/two_bars.py`` (crack at x = 0, symmetry sides)."""
+    return scenario("two_bars").make_mesh(comm, L, nx)
 
 
 def run_case(mesh, tags, contact: ContactParams, dt_factor: float, degree=2, t_window=T_WINDOW, gap=0.0):
@@ -109,10 +104,7 @@ def chatter(sn):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="fewer kappa and delta'_0 values")
-    parser.add_argument("--out", default="postprocess/results")
-    args = parser.parse_args(argv)
+    args = study_parser(__doc__).parse_args(argv)
     comm = MPI.COMM_WORLD
     mesh, tags = bars(comm, 20)
     kappas = KAPPAS[1::2] if args.quick else KAPPAS

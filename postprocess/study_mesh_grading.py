@@ -17,14 +17,13 @@ Writes ``mesh_grading.csv`` into ``postprocess/results`` (``--out``).
 """
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from pathlib import Path
 
 from mpi4py import MPI
 
 from hydrofrac.postprocess.rundata import write_csv
+from hydrofrac.postprocess.study_common import scenario, study_parser, timed_run
 
 CASES = [  # name, h_crack, h_far
     ("graded, h = 3 cm (reference)", 0.03, 0.5),
@@ -36,8 +35,7 @@ T_END = 1.0e-3
 
 
 def run_case(h_crack, h_far):
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scenarios"))
-    import intersection as ix
+    ix = scenario("intersection")
     comm = MPI.COMM_WORLD
     t0 = time.perf_counter()
     solver, iface, hyd, fm = ix.setup(comm, regularized=True, h_crack=h_crack, h_far=h_far)
@@ -45,16 +43,7 @@ def run_case(h_crack, h_far):
     scene = ix.Scene()
     scene.set(solver, iface, hyd, fm)
     mon = ix.Monitor(scene, fm.naturals)
-    comm.barrier()
-    t0 = time.perf_counter()
-    solver.update_energy()
-    while solver.t < T_END * (1 - 1e-12):
-        solver.step()
-        solver.update_energy()
-        solver.check_stability()
-        mon(solver)
-    comm.barrier()
-    wall = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
+    wall = timed_run(solver, T_END, mon)
     acc = mon.accuracy()
     return {"cells": solver.num_cells, "dofs": solver.num_dofs, "steps": solver.step_count, "dt": solver.dt,
             "setup_s": setup, "wall_s": wall, "intersection_time": acc["intersection_time"],
@@ -62,9 +51,7 @@ def run_case(h_crack, h_far):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="postprocess/results")
-    args = parser.parse_args(argv)
+    args = study_parser(__doc__).parse_args(argv)
     comm = MPI.COMM_WORLD
     rows = []
     for name, hc, hf in CASES:

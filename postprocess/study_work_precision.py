@@ -23,7 +23,6 @@ Writes ``work_precision_cg.csv`` and ``work_precision_cg.png`` into ``postproces
 """
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
 
@@ -37,6 +36,7 @@ from hydrofrac.boundary import OuterState
 from hydrofrac.cg_baseline import CentralDifferenceCG, energy_norm_error, timed_steps
 from hydrofrac.forms import elastodynamics as ef
 from hydrofrac.postprocess.rundata import write_csv
+from hydrofrac.postprocess.study_common import study_parser
 from hydrofrac.solver import Solver
 
 DIRECTION = np.array([math.cos(0.3), math.sin(0.3)])
@@ -155,10 +155,7 @@ def plot(rows, png):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", default="postprocess/results")
-    args = parser.parse_args(argv)
+    args = study_parser(__doc__).parse_args(argv)
     comm = MPI.COMM_WORLD
     rows = []
     for p, Ns in (QUICK_DG if args.quick else DG_SIZES).items():

@@ -18,16 +18,13 @@ a contact algorithm or doubled nodes, which it does not have).  Writes
 """
 from __future__ import annotations
 
-import argparse
-import sys
-import time
 from pathlib import Path
 
 from mpi4py import MPI
 
 from hydrofrac.postprocess.rundata import write_csv
+from hydrofrac.postprocess.study_common import scenario, study_parser, timed_run
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scenarios"))
 
 BARS = {1: (20, 40, 80), 2: (20, 40, 80), 3: (20, 40, 80), 4: (20, 40, 80)}
 SNEDDON = {1: (0.2, 0.1, 0.05), 2: (0.2, 0.1, 0.05), 3: (0.2, 0.1, 0.05), 4: (0.2, 0.1)}
@@ -35,22 +32,8 @@ QUICK_BARS = {1: (20, 40), 2: (20, 40)}
 QUICK_SNEDDON = {1: (0.2,), 2: (0.2,)}
 
 
-def timed_run(solver, t_end, on_step):
-    comm = solver.comm
-    comm.barrier()
-    t0 = time.perf_counter()
-    solver.update_energy()
-    while solver.t < t_end * (1 - 1e-12):
-        solver.step()
-        solver.update_energy()
-        solver.check_stability()
-        on_step(solver)
-    comm.barrier()
-    return comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
-
-
 def bars_case(p, nx):
-    import two_bars as tb
+    tb = scenario("two_bars")
     solver, iface = tb.setup(degree=p, nx=nx)
     rec = tb.Recorder(iface)
     wall = timed_run(solver, 0.75e-3, rec)
@@ -61,7 +44,7 @@ def bars_case(p, nx):
 
 
 def sneddon_case(p, h):
-    import sneddon as sn
+    sn = scenario("sneddon")
     solver, iface, hyd = sn.setup(degree=p, a=1.0, dp=1.0e6, size=8.0, h_crack=h, h_far=1.5, t_ramp=1.0e-3,
                                   relaxation=1500.0)
     wall = timed_run(solver, 3.0e-3, hyd.on_step)
@@ -94,10 +77,7 @@ def plot(bars, sned, png):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", default="postprocess/results")
-    args = parser.parse_args(argv)
+    args = study_parser(__doc__).parse_args(argv)
     comm = MPI.COMM_WORLD
     bars, sned = [], []
     for p, sizes in (QUICK_BARS if args.quick else BARS).items():
