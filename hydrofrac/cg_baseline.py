@@ -89,7 +89,8 @@ class CentralDifferenceCG:
     def _lambda_max(self, iters=60):
         """Largest eigenvalue of M^{-1} K (lumped or consistent M) by power iteration, x1.02."""
         y = self.x[2]
-        y.array[:] = np.random.default_rng(self.comm.rank).random(y.array.size)
+        y0 = np.random.default_rng(self.comm.rank).random(y.array.size)
+        y.array[:] = y0 / self.comm.allreduce(float(y0 @ y0), op=MPI.SUM) ** 0.5  # unit vector
         lam = 0.0
         for _ in range(iters):
             self.K.mult(y, self.Ku)
@@ -99,10 +100,8 @@ class CentralDifferenceCG:
                 self.Ku.array[self.bdofs] = 0.0
                 self.ksp.solve(self.Ku, self.acc)
                 z = self.acc.array_r.copy()
-            lam = self.comm.allreduce(float(np.dot(z, z)), op=MPI.SUM) ** 0.5 / \
-                max(self.comm.allreduce(float(np.dot(y.array_r, y.array_r)), op=MPI.SUM) ** 0.5, 1e-300)
-            nz = self.comm.allreduce(float(np.dot(z, z)), op=MPI.SUM) ** 0.5
-            y.array[:] = z / nz
+            lam = self.comm.allreduce(float(z @ z), op=MPI.SUM) ** 0.5  # |M^-1 K y| with |y| = 1
+            y.array[:] = z / lam
         return 1.02 * lam
 
     def _exact_owned(self, t):
