@@ -221,3 +221,45 @@ def vertex_global_indices(mesh, local_vertices):
     if lv.size == 0:
         return lv.astype(np.int64)
     return mesh.topology.index_map(0).local_to_global(lv.reshape(-1)).reshape(lv.shape).astype(np.int64)
+
+
+def mesh_arrays(mesh):
+    """(x (n, 2), cells (num_cells, 3)) of an affine triangle mesh on one process: geometry
+    node coordinates and each cell's node indices (0.9: ``mesh.geometry.dofmap`` is 2D)."""
+    if mesh.comm.size > 1:
+        raise ValueError("mesh_arrays needs a mesh on one process (MPI.COMM_SELF)")
+    return mesh.geometry.x[:, :2].copy(), mesh.geometry.dofmap.array.reshape(-1, 3).copy()
+
+
+def create_mesh(comm, cells, x, rank=0):
+    """Affine triangle mesh from arrays held on ``rank`` (others pass empty arrays)
+    (0.9: ``dolfinx.mesh.create_mesh(comm, cells, x, ufl.Mesh(element("Lagrange", "triangle",
+    1, shape=(2,))))``)."""
+    domain = ufl.Mesh(ufl.VectorElement("Lagrange", ufl.triangle, 1))
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
+    x = np.asarray(x, dtype=float).reshape(-1, 2)
+    if comm.rank != rank:
+        cells, x = np.empty((0, 3), np.int64), np.empty((0, 2))
+    return dolfinx.mesh.create_mesh(comm, cells, x, domain, ghost_mode=GHOST_MODE)
+
+
+def eval_function(u, points, cells):
+    """Values of Function ``u`` at ``points`` (m, 2) inside the given local ``cells`` (m,)."""
+    pts = np.zeros((len(points), 3))
+    pts[:, :2] = points
+    return u.eval(pts, np.asarray(cells, dtype=np.int32))
+
+
+def facet_cells(mesh, facets):
+    """The first cell of each facet (the only one for an exterior facet)."""
+    tdim = mesh.topology.dim
+    off, arr = connectivity(mesh, tdim - 1, tdim)
+    return arr[off[np.asarray(facets)]]
+
+
+def facet_nodes(mesh, facets):
+    """(m, 2) geometry node indices of the two end vertices of each facet (local)."""
+    tdim = mesh.topology.dim
+    off, arr = connectivity(mesh, tdim - 1, 0)
+    f = np.asarray(facets)
+    return vertex_to_geometry(mesh)[np.stack([arr[off[f]], arr[off[f] + 1]], axis=1)]

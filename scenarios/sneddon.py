@@ -34,21 +34,29 @@ def exact_opening(x, a, dp, mat=ROCK):
 
 # ## Set-up
 # The crack lies on the x axis; the box is R = `size` a wide on each side.
-def setup(comm=MPI.COMM_WORLD, degree=2, a=1.0, dp=1.0e6, p0=CONFINEMENT, size=6.0, h_crack=0.05,
-          h_far=1.0, t_ramp=1.0e-3, relaxation=0.0):
+def make_mesh(comm, a=1.0, size=6.0, h_crack=0.05, h_far=1.0):
     dom = Domain(half_width=size * a, half_height=size * a, wellbore_radius=0.0, h_crack=h_crack * a,
                  h_far=h_far * a, grading=2.0 * a)
-    fm = fracture_mesh(comm, dom, fractures=[Fracture((0.0, 0.0), 0.0, 2 * a)])
+    return fracture_mesh(comm, dom, fractures=[Fracture((0.0, 0.0), 0.0, 2 * a)])
+
+
+def pressure_ramp(p0, dp, t_ramp):
+    """p0 -> p0 + dp along a smoothstep sampled at 41 points: no kink that rings the crack."""
+    xi = np.linspace(0.0, 1.0, 41)
+    return PiecewiseLinear(t_ramp * xi, p0 + dp * xi * xi * (3 - 2 * xi))
+
+
+def setup(comm=MPI.COMM_WORLD, degree=2, a=1.0, dp=1.0e6, p0=CONFINEMENT, size=6.0, h_crack=0.05,
+          h_far=1.0, t_ramp=1.0e-3, relaxation=0.0):
+    fm = make_mesh(comm, a, size, h_crack, h_far)
     sigma0 = -p0 * np.eye(2)
     cracks = [Crack(NATURAL, friction=0.0, damage=1.0)]
     solver = Solver(fm.mesh, degree, ROCK, facet_tags=fm.facet_tags, sigma0=sigma0,
                     bcs=[Absorbing(OUTER, stress=sigma0)],
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks), relaxation=relaxation)
     iface = Interface(solver, fm.facet_tags, cracks)
-    # smooth ramp (smoothstep sampled at 41 points): no kink that rings the crack
-    xi = np.linspace(0.0, 1.0, 41)
-    pressure = PiecewiseLinear(t_ramp * xi, p0 + dp * xi * xi * (3 - 2 * xi))
-    hyd = Hydraulics(iface, HydraulicParams(pressure=pressure, sources=[NATURAL], regularized=False))
+    hyd = Hydraulics(iface, HydraulicParams(pressure=pressure_ramp(p0, dp, t_ramp), sources=[NATURAL],
+                                            regularized=False))
     return solver, iface, hyd
 
 
