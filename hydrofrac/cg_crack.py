@@ -194,6 +194,11 @@ class CrackCG:
         self.t += dt
         self.step_count += 1
 
+    def mean_velocity(self, nodes):
+        """Momentum / mass (2,) of the dof blocks selected by the boolean array ``nodes``."""
+        v, m = self.velocity().reshape(-1, 2)[nodes], self.m.reshape(-1, 2)[nodes]
+        return (m * v).sum(axis=0) / m.sum(axis=0)
+
     def displacement(self):
         fu = compat.function(self.V)
         compat.function_array(fu)[:] = self.u[1]

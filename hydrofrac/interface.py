@@ -282,11 +282,29 @@ class Interface:
         # (owned or ghost) and the owned cells receiving other ranks' contributions
         touched_cells = np.unique(np.r_[cells.reshape(-1), self.owned_cells]).astype(np.int64)
         self._touched = (5 * self._all_dofs[touched_cells][:, :, None] + np.arange(5)).reshape(-1)
+        self._P, self._I = kernels.pack_facets(self.n, self.Z[0], self.Z[1], self.Zt, self.friction,
+                                               self.delta_scale, self.v_scale, self.tau, self.weights, self._phi[0],
+                                               self._phi[1], self._cells[0], self._cells[1], self._dofs[0],
+                                               self._dofs[1])
+        self._nb = self._phi[0].shape[2]
         solver.extensions.append(self)
+        self._compile_stage()
         solver.timers.add("setup", time.perf_counter() - t0)
         self.evaluate(solver.x, 0.0, store=True)
 
     # ------------------------------------------------------------------ kernels
+    def _compile_stage(self):
+        """Compile (or load from numba's cache) the stage kernel for the argument types of a
+        run, on zero facets: the first stage's compile time is set-up, not interface time."""
+        X = np.zeros(5)
+        X.flags.writeable = False  # a local form's array_r
+        c = self.contact
+        z = np.zeros((3, 0, self.nq))
+        Rc = np.zeros((0, self._nb, 5))
+        kernels.interface_stage(X, Rc, np.zeros(5), 0, np.zeros((3, 0, self.nq)), self._P[:0], self._I[:0],
+                                self.nq, self._nb, z[0], z[1], np.zeros((0, self.nq, 2)), np.zeros((0, self.nq)),
+                                1.0, c.regularized, c.delta0, c.w0, 0.0, 1.0, 0.0, 1.0, 1.0)
+
     def _separation(self, t):
         """(S0 (nf, nq, 2), cS (nf, nq), scale) of the separation law
         S = scale S0 + cS <-s_B^1> e_n."""
@@ -326,8 +344,7 @@ class Interface:
         S0, cS, S_scale = self._separation(t)
         D = np.ascontiguousarray(z[0])
         kernels.interface_targets(
-            xloc, self._dofs[0], self._dofs[1], self._phi[0], self._phi[1], self.n, self.Z[0], self.Z[1], self.Zt,
-            self.friction, self.delta_scale, self.v_scale, D, np.ascontiguousarray(z[1]), S0, cS, S_scale,
+            xloc, self._P, self._I, self.nq, self._nb, D, np.ascontiguousarray(z[1]), S0, cS, S_scale,
             self.contact.regularized, self.contact.delta0, self.contact.w0,
             0.0 if self.contact.penalty is None else float(self.contact.penalty),
             T["vp"], T["vm"], T["sp"], T["sm"], T["s_B"], T["S"], T["s_star"], T["vp_star"], T["vm_star"],
@@ -353,12 +370,9 @@ class Interface:
         rates = np.empty_like(z)
         d, c = self.damage, self.contact
         with self._r.localForm() as rl:  # zero except between a stage and its finish
-            kernels.interface_stage(X, Rc, rl.array, nowned, rates, self._dofs[0], self._dofs[1], self._phi[0],
-                                    self._phi[1], self._cells[0], self._cells[1], self.n, self.weights, self.Z[0],
-                                    self.Z[1], self.Zt, self.friction, self.delta_scale, self.v_scale, z[0], z[1],
+            kernels.interface_stage(X, Rc, rl.array, nowned, rates, self._P, self._I, self.nq, self._nb, z[0], z[1],
                                     S0, cS, S_scale, c.regularized, c.delta0, c.w0,
-                                    0.0 if c.penalty is None else float(c.penalty), d.beta, d.s_onset, d.s_bar,
-                                    self.tau, d.a)
+                                    0.0 if c.penalty is None else float(c.penalty), d.beta, d.s_onset, d.s_bar, d.a)
         return rates
 
     def _finish(self, out, cells):

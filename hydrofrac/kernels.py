@@ -10,9 +10,9 @@ their Gauss points per Runge-Kutta stage.
 * :func:`apply_block_inverse` multiplies the residual of the touched cells by their
   closed-form inverse mass blocks.
 
-Layouts: the field vector holds 5 values (v_x, v_y, s_xx, s_yy, s_xy) per dof block;
-``dofs`` (nf, nb) are block indices of a facet's cell on one side, ``phi`` (nf, nq, nb)
-that cell's basis at the facet's Gauss points.  Local components: 0 = normal, 1 = tangent
+Layouts: the field vector holds 5 values (v_x, v_y, s_xx, s_yy, s_xy) per dof block; the
+per-facet data (normal, impedances, scales, weights, both cells' basis at the Gauss points,
+cells and dof blocks) are packed into two records per facet (:func:`pack_facets`).  Local components: 0 = normal, 1 = tangent
 ``t = (-n_y, n_x)``.
 """
 from __future__ import annotations
@@ -24,13 +24,41 @@ from .riemann import (bonded_pt, combine_point, damage_rate_pt, effective_stress
                       eta_regularized_pt, macaulay_pt, target_damage_pt)
 
 
+# Packed per-facet records (built once by :func:`pack_facets`): the stage streams through
+# two arrays instead of some twenty, which keeps the hardware prefetcher ahead when the
+# interface pass runs right after the bulk pass has evicted its data from the caches.
+#   P (nf, 11 + nq + 2 nq nb) float: n_x, n_y, Zp_n, Zp_t, Zm_n, Zm_t, Z~_n, k, delta~, v~, tau~,
+#       quadrature weights (nq), phi_+ (nq, nb), phi_- (nq, nb)
+#   I (nf, 2 + 2 nb) int: cell_+, cell_-, dofs_+ (nb), dofs_- (nb)
+_NX, _NY, _ZPN, _ZPT, _ZMN, _ZMT, _ZT, _K, _DS, _VS, _TAU, _W = range(12)
+
+
+def pack_facets(normal, Zp, Zm, Zt, k, delta_scale, v_scale, tau, weights, phi_p, phi_m, cells_p, cells_m,
+                dofs_p, dofs_m):
+    """The (P, I) records of the crack facets (layout above)."""
+    nf, nq, nb = phi_p.shape
+    P = np.empty((nf, _W + nq + 2 * nq * nb))
+    P[:, _NX], P[:, _NY] = normal[:, 0], normal[:, 1]
+    P[:, _ZPN], P[:, _ZPT], P[:, _ZMN], P[:, _ZMT] = Zp[:, 0], Zp[:, 1], Zm[:, 0], Zm[:, 1]
+    P[:, _ZT], P[:, _K], P[:, _DS], P[:, _VS], P[:, _TAU] = Zt[:, 0], k, delta_scale, v_scale, tau
+    P[:, _W:_W + nq] = weights
+    P[:, _W + nq:_W + nq + nq * nb] = phi_p.reshape(nf, -1)
+    P[:, _W + nq + nq * nb:] = phi_m.reshape(nf, -1)
+    I = np.empty((nf, 2 + 2 * nb), dtype=np.int64)
+    I[:, 0], I[:, 1] = cells_p, cells_m
+    I[:, 2:2 + nb], I[:, 2 + nb:] = dofs_p, dofs_m
+    return P, I
+
+
 @njit
-def _trace(X, dofs, phi, f, q, nx, ny):
-    """(v_n, v_t, s_n, s_t) of one side at Gauss point q of facet f."""
+def _trace(X, I, P, f, q, side, nq, nb, nx, ny):
+    """(v_n, v_t, s_n, s_t) of one side (0: +, 1: -) at Gauss point q of facet f."""
     u0 = u1 = u2 = u3 = u4 = 0.0
-    for j in range(phi.shape[2]):
-        a = phi[f, q, j]
-        b = 5 * dofs[f, j]
+    po = _W + nq + (side * nq + q) * nb
+    do = 2 + side * nb
+    for j in range(nb):
+        a = P[f, po + j]
+        b = 5 * I[f, do + j]
         u0 += a * X[b]
         u1 += a * X[b + 1]
         u2 += a * X[b + 2]
@@ -42,49 +70,46 @@ def _trace(X, dofs, phi, f, q, nx, ny):
 
 
 @njit
-def _point(X, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, Zp, Zm, Zt, k, delta_scale, v_scale, D, delta, S0, cS,
-           S_scale, regularized, delta0, w0, kappa):
+def _point(X, P, I, f, q, nq, nb, D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa):
     """Traces, bonded solution, separation traction, eta and combined targets at Gauss
     point q of facet f.  Returns (vpn, vpt, vmn, vmt, spn, spt, smn, smt, sBn, sBt, Sn, St,
     s*n, s*t, v*+n, v*+t, v*-n, v*-t, gamma, eta, w')."""
-    vpn, vpt, spn, spt = _trace(X, dofs_p, phi_p, f, q, nx, ny)
-    vmn, vmt, smn, smt = _trace(X, dofs_m, phi_m, f, q, nx, ny)
-    sBn, vBn = bonded_pt(vpn, vmn, spn, smn, Zp[f, 0], Zm[f, 0])
-    sBt, vBt = bonded_pt(vpt, vmt, spt, smt, Zp[f, 1], Zm[f, 1])
+    nx, ny = P[f, _NX], P[f, _NY]
+    Zpn, Zpt, Zmn, Zmt = P[f, _ZPN], P[f, _ZPT], P[f, _ZMN], P[f, _ZMT]
+    vpn, vpt, spn, spt = _trace(X, I, P, f, q, 0, nq, nb, nx, ny)
+    vmn, vmt, smn, smt = _trace(X, I, P, f, q, 1, nq, nb, nx, ny)
+    sBn, vBn = bonded_pt(vpn, vmn, spn, smn, Zpn, Zmn)
+    sBt, vBt = bonded_pt(vpt, vmt, spt, smt, Zpt, Zmt)
     Sn = S_scale * S0[f, q, 0] + cS[f, q] * macaulay_pt(-sBn)
     St = S_scale * S0[f, q, 1]
     if kappa > 0.0:
         Sn -= kappa * macaulay_pt(-delta[f, q])
-    w = 2.0 / Zt[f, 0] * (sBn - Sn) / v_scale[f]  # [[v_S^1]] / v~ (eqs. 11-12)
-    dn = delta[f, q] / delta_scale[f]
+    w = 2.0 / P[f, _ZT] * (sBn - Sn) / P[f, _VS]  # [[v_S^1]] / v~ (eqs. 11-12)
+    dn = delta[f, q] / P[f, _DS]
     if kappa > 0.0:
         e = 0.0
     elif regularized:
         e = eta_regularized_pt(dn, w, delta0, w0)
     else:
         e = eta_exact_pt(dn, w)
-    r = combine_point(vpn, vpt, vmn, vmt, spn, spt, smn, smt, Zp[f, 0], Zp[f, 1], Zm[f, 0], Zm[f, 1],
-                      k[f], D[f, q], e, Sn, St, sBn, vBn, sBt, vBt)
+    r = combine_point(vpn, vpt, vmn, vmt, spn, spt, smn, smt, Zpn, Zpt, Zmn, Zmt,
+                      P[f, _K], D[f, q], e, Sn, St, sBn, vBn, sBt, vBt)
     return (vpn, vpt, vmn, vmt, spn, spt, smn, smt, sBn, sBt, Sn, St, r[0], r[1], r[2], r[3], r[4], r[5], r[6],
             e, w)
 
 
 @njit
-def interface_targets(X, dofs_p, dofs_m, phi_p, phi_m, normal, Zp, Zm, Zt, k, delta_scale, v_scale,
-                      D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa,
+def interface_targets(X, P, I, nq, nb, D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa,
                       vp, vm, sp, sm, sB, S, s_star, vp_star, vm_star, eta, gamma, wn):
     """Targets at every Gauss point; outputs (last 12 arguments) are (nf*nq, 2) or (nf*nq,).
 
     The separation traction is ``S = S_scale S0 + cS <-s_B^1> e_n`` (the hydraulic law, eq. 16,
     is of this form; S0 = cS = 0 for traction-free cracks).  ``kappa`` > 0 switches to the
     penalty baseline: eta = 0 and S^1 += -kappa <-delta>."""
-    nf, nq = phi_p.shape[0], phi_p.shape[1]
-    for f in range(nf):
-        nx, ny = normal[f, 0], normal[f, 1]
+    for f in range(P.shape[0]):
         for q in range(nq):
             i = f * nq + q
-            o = _point(X, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, Zp, Zm, Zt, k, delta_scale, v_scale, D, delta,
-                       S0, cS, S_scale, regularized, delta0, w0, kappa)
+            o = _point(X, P, I, f, q, nq, nb, D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa)
             vp[i, 0], vp[i, 1], vm[i, 0], vm[i, 1] = o[0], o[1], o[2], o[3]
             sp[i, 0], sp[i, 1], sm[i, 0], sm[i, 1] = o[4], o[5], o[6], o[7]
             sB[i, 0], sB[i, 1], S[i, 0], S[i, 1] = o[8], o[9], o[10], o[11]
@@ -97,46 +122,45 @@ def interface_targets(X, dofs_p, dofs_m, phi_p, phi_m, normal, Zp, Zm, Zt, k, de
 
 
 @njit
-def interface_stage(X, Rc, r, nowned, rates, dofs_p, dofs_m, phi_p, phi_m, cells_p, cells_m, normal, weights, Zp, Zm,
-                    Zt, k, delta_scale, v_scale, D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa, beta,
-                    s_onset, s_bar, tau, a):
+def interface_stage(X, Rc, r, nowned, rates, P, I, nq, nb, D, delta, S0, cS, S_scale, regularized, delta0, w0,
+                    kappa, beta, s_onset, s_bar, a):
     """One Runge-Kutta stage on the crack facets in one pass: the targets at every Gauss
     point (as :func:`interface_targets`), their flux corrections added to the residuals
     (cell-major Rc for cells below ``nowned``, dof vector r otherwise; :func:`_scatter`),
     and the state rates (3, nf, nq): damage (eqs. 8-10), normal opening and slip from the
     target velocity jump [[v*]] = v*- - v*+."""
-    nf, nq = phi_p.shape[0], phi_p.shape[1]
-    for f in range(nf):
-        nx, ny = normal[f, 0], normal[f, 1]
+    for f in range(P.shape[0]):
+        nx, ny = P[f, _NX], P[f, _NY]
         for q in range(nq):
-            o = _point(X, dofs_p, dofs_m, phi_p, phi_m, f, q, nx, ny, Zp, Zm, Zt, k, delta_scale, v_scale, D, delta,
-                       S0, cS, S_scale, regularized, delta0, w0, kappa)
-            _flux(Rc, r, dofs_p, dofs_m, phi_p, phi_m, cells_p, cells_m, nowned, f, q, nx, ny, weights[f, q],
+            o = _point(X, P, I, f, q, nq, nb, D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa)
+            _flux(Rc, r, P, I, nowned, f, q, nq, nb, nx, ny, P[f, _W + q],
                   o[0], o[1], o[2], o[3], o[4], o[5], o[6], o[7], o[12], o[13], o[14], o[15], o[16], o[17])
             Dt = target_damage_pt(effective_stress_pt(o[8], o[9], beta), s_onset, s_bar)
-            rates[0, f, q] = damage_rate_pt(D[f, q], Dt, tau[f], a)
+            rates[0, f, q] = damage_rate_pt(D[f, q], Dt, P[f, _TAU], a)
             rates[1, f, q] = o[16] - o[14]
             rates[2, f, q] = o[17] - o[15]
 
 
 @njit
-def _scatter(Rc, r, dofs, phi, cells, nowned, f, q, F0, F1, F2, F3, F4):
+def _scatter(Rc, r, P, I, nowned, f, q, side, nq, nb, F0, F1, F2, F3, F4):
     """Add one Gauss point's flux to the facet's cell on one side: into the cell-major
     residual Rc[c, j, :] of the matrix-free operator if the cell is one of its first
     ``nowned`` (owned) cells, else into the dof-vector residual r."""
-    c = cells[f]
+    c = I[f, side]
+    po = _W + nq + (side * nq + q) * nb
     if c < nowned:
-        for j in range(phi.shape[2]):
-            a = phi[f, q, j]
+        for j in range(nb):
+            a = P[f, po + j]
             Rc[c, j, 0] += a * F0
             Rc[c, j, 1] += a * F1
             Rc[c, j, 2] += a * F2
             Rc[c, j, 3] += a * F3
             Rc[c, j, 4] += a * F4
     else:
-        for j in range(phi.shape[2]):
-            a = phi[f, q, j]
-            b = 5 * dofs[f, j]
+        do = 2 + side * nb
+        for j in range(nb):
+            a = P[f, po + j]
+            b = 5 * I[f, do + j]
             r[b] += a * F0
             r[b + 1] += a * F1
             r[b + 2] += a * F2
@@ -145,7 +169,7 @@ def _scatter(Rc, r, dofs, phi, cells, nowned, f, q, F0, F1, F2, F3, F4):
 
 
 @njit
-def _flux(Rc, r, dofs_p, dofs_m, phi_p, phi_m, cells_p, cells_m, nowned, f, q, nx, ny, w, vpn, vpt, vmn, vmt,
+def _flux(Rc, r, P, I, nowned, f, q, nq, nb, nx, ny, w, vpn, vpt, vmn, vmt,
           spn, spt, smn, smt, ssn, sst, vpsn, vpst, vmsn, vmst):
     """Flux corrections of both sides at one Gauss point (weight w) (see :func:`_scatter`): momentum
     ``(s* - s) . w`` and kinematics ``(v* - v) . (tau n)`` with each side's outward normal
@@ -160,10 +184,7 @@ def _flux(Rc, r, dofs_p, dofs_m, phi_p, phi_m, cells_p, cells_m, nowned, f, q, n
         mx, my = sgn * nx, sgn * ny
         F0, F1 = w * sgn * dsx, w * sgn * dsy
         F2, F3, F4 = w * dvx * mx, w * dvy * my, w * (dvx * my + dvy * mx)
-        if side == 0:
-            _scatter(Rc, r, dofs_p, phi_p, cells_p, nowned, f, q, F0, F1, F2, F3, F4)
-        else:
-            _scatter(Rc, r, dofs_m, phi_m, cells_m, nowned, f, q, F0, F1, F2, F3, F4)
+        _scatter(Rc, r, P, I, nowned, f, q, side, nq, nb, F0, F1, F2, F3, F4)
 
 
 @njit

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import math
 import sys
 import time
 from pathlib import Path
@@ -48,3 +49,21 @@ def timed_run(solver, t_end, on_step=None):
             on_step(solver)
     comm.barrier()
     return comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
+
+
+def wall_at(rows, target, key):
+    """Smallest wall time at which any method of ``rows`` reaches error ``row[key] <= target``,
+    interpolating log(wall) against log(error) between consecutive sizes of a method (by
+    ``row["dofs"]``); inf if none does."""
+    best = math.inf
+    for m in sorted({r["method"] for r in rows}):
+        rs = sorted([r for r in rows if r["method"] == m], key=lambda r: r["dofs"])
+        for a, b in zip(rs, rs[1:]):
+            ea, eb = max(a[key], 1e-300), max(b[key], 1e-300)
+            if (ea - target) * (eb - target) <= 0 and ea != eb:
+                s = (math.log(target) - math.log(ea)) / (math.log(eb) - math.log(ea))
+                best = min(best, math.exp(math.log(a["wall_s"]) + s * (math.log(b["wall_s"]) - math.log(a["wall_s"]))))
+        for r in rs:
+            if r[key] <= target:
+                best = min(best, r["wall_s"])
+    return best
