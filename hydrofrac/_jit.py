@@ -30,3 +30,32 @@ def vectorize(point_fn, signatures):
     if not HAVE_NUMBA:
         return np.vectorize(point_fn, otypes=[float])
     return numba.vectorize(list(signatures), cache=True)(point_fn.py_func)
+
+
+if HAVE_NUMBA:
+    from llvmlite import ir
+    from numba import types
+    from numba.core import cgutils
+    from numba.extending import intrinsic
+
+    @intrinsic
+    def prefetch(typingctx, arr, flat_index):
+        """Hint the CPU to fetch the cache line holding element ``flat_index`` of the
+        C-contiguous array ``arr`` (LLVM ``llvm.prefetch``: read, keep in all levels).  A
+        hint only: no effect on results, and no fault for an index past the end."""
+        if not isinstance(arr, types.Array) or not isinstance(flat_index, types.Integer):
+            return None
+
+        def codegen(context, builder, signature, args):
+            ary = context.make_array(signature.args[0])(context, builder, args[0])
+            ptr = builder.gep(ary.data, [args[1]])
+            i8p, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
+            fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                                "llvm.prefetch.p0i8")
+            builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
+            return context.get_dummy_value()
+
+        return types.void(arr, flat_index), codegen
+else:  # pragma: no cover
+    def prefetch(arr, flat_index):
+        pass

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import njit
+from ._jit import njit, prefetch
 from .riemann import (bonded_pt, combine_point, damage_rate_pt, effective_stress_pt, eta_exact_pt,
                       eta_regularized_pt, macaulay_pt, target_damage_pt)
 
@@ -129,7 +129,10 @@ def interface_stage(X, Rc, r, nowned, rates, P, I, nq, nb, D, delta, S0, cS, S_s
     (cell-major Rc for cells below ``nowned``, dof vector r otherwise; :func:`_scatter`),
     and the state rates (3, nf, nq): damage (eqs. 8-10), normal opening and slip from the
     target velocity jump [[v*]] = v*- - v*+."""
-    for f in range(P.shape[0]):
+    nf = P.shape[0]
+    for f in range(nf):
+        if f + _AHEAD < nf:
+            _prefetch_cells(X, Rc, I, f + _AHEAD, nb, nowned)
         nx, ny = P[f, _NX], P[f, _NY]
         for q in range(nq):
             o = _point(X, P, I, f, q, nq, nb, D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa)
@@ -139,6 +142,22 @@ def interface_stage(X, Rc, r, nowned, rates, P, I, nq, nb, D, delta, S0, cS, S_s
             rates[0, f, q] = damage_rate_pt(D[f, q], Dt, P[f, _TAU], a)
             rates[1, f, q] = o[16] - o[14]
             rates[2, f, q] = o[17] - o[15]
+
+
+#: facets ahead whose cells' field values and residual rows are prefetched: the interface
+#: pass follows the bulk pass, which has pushed them out of the nearer caches
+_AHEAD = 6
+
+
+@njit
+def _prefetch_cells(X, Rc, I, f, nb, nowned):
+    for side in range(2):
+        c = I[f, side]
+        for j in range(nb):
+            prefetch(X, 5 * I[f, 2 + side * nb + j])
+        if c < nowned:
+            for o in range(0, 5 * nb, 8):
+                prefetch(Rc, c * 5 * nb + o)
 
 
 @njit
