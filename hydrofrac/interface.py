@@ -304,6 +304,9 @@ class Interface:
         kernels.interface_stage(X, Rc, np.zeros(5), 0, np.zeros((3, 0, self.nq)), self._P[:0], self._I[:0],
                                 self.nq, self._nb, z[0], z[1], np.zeros((0, self.nq, 2)), np.zeros((0, self.nq)),
                                 1.0, c.regularized, c.delta0, c.w0, 0.0, 1.0, 0.0, 1.0, 1.0)
+        if self._ghost_flux or self.solver.matfree is None:
+            kernels.apply_block_inverse(np.zeros(5), np.zeros(5), self._recv_cells[:0], self._all_dofs,
+                                        self.solver.Mref_inv, self.solver.Binv_scaled)
 
     def _separation(self, t):
         """(S0 (nf, nq, 2), cS (nf, nq), scale) of the separation law
