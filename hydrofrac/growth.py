@@ -10,8 +10,9 @@ bulk traction in place of the bonded Riemann traction: in a cell they coincide, 
 being continuous there).  The growth direction is the maximiser, refined by a parabola
 through the best sample and its neighbours.
 
-Growth with remeshing (inserting segments, Gmsh remeshing, field transfer) is not built yet:
-this module gives the criterion and its verification against the analytical near-tip answer.
+:class:`GrowthDriver` grows the tips with remeshing: it inserts the new segments as bonded
+paths, has Gmsh remesh the scene and moves fields and interface state to the new mesh
+(:mod:`hydrofrac.transfer`).
 """
 from __future__ import annotations
 
@@ -225,11 +226,14 @@ class GrowthDriver:
     (:mod:`hydrofrac.transfer`) and returns the new solver; otherwise None.
 
     Remeshes happen only when a tip advanced; ``count`` and the "remesh" timer report them.
+    ``record``: a JSON file rewritten (on rank 0) after every growth batch with the tip paths,
+    the growth events (time, tip, angle, s̆ max) and the joins, so that a run that stops keeps
+    the paths it grew.
     """
 
     def __init__(self, build, tips, params: GrowthParams, da: float, threshold: float, tags,
                  check_every: int = 10, ready_damage: float = 0.5, inside=None, domain_size=None,
-                 obstacles=()):
+                 obstacles=(), record=None):
         if not da > 0:
             raise ValueError(f"growth increment da must be > 0 m; got {da}")
         if domain_size is not None and not da < domain_size:
@@ -241,6 +245,7 @@ class GrowthDriver:
         self.tags = list(tags)
         self.check_every, self.ready_damage, self.inside = check_every, ready_damage, inside
         self.obstacles = [np.asarray(o, float) for o in obstacles]
+        self.record = record
         self.joined = []  # (t, tip index, point)
         self.paths = [[np.asarray(t.point, float).copy()] for t in tips]
         self.count = 0
@@ -306,4 +311,19 @@ class GrowthDriver:
         transfer_interface(self.iface, new_iface)
         self.solver, self.iface = new_solver, new_iface
         self.count += 1
+        self.write()
         return new_solver
+
+    def write(self, path=None):
+        """Write the paths, events and joins as JSON (rank 0) to ``path`` or ``record``."""
+        path = path or self.record
+        if path is None or self.solver.comm.rank != 0:
+            return
+        import json
+        from pathlib import Path
+        data = {"paths": [np.asarray(p).tolist() for p in self.paths],
+                "events": [{"t": t, "tip": i, "angle_deg": a, "s_max": s_} for t, i, a, s_ in self.events],
+                "joined": [{"t": t, "tip": i, "point": np.asarray(p).tolist()} for t, i, p in self.joined],
+                "remeshes": self.count}
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_text(json.dumps(data, indent=1, default=float))

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import math
 
+from pathlib import Path
+
 import numpy as np
 from mpi4py import MPI
 
@@ -84,6 +86,7 @@ def main(argv=None):
 
     opts = RunOptions(t_end=args.t_end or (1.5e-3 if args.quick else 3.0e-3), out=args.out or "results/crack_growth",
                       frames=args.frames or 30)
+    driver.record = Path(opts.out) / "growth.json"  # the grown paths, written as they grow
     summary = run(driver.solver, opts, name="crack_growth", extra_parts=lambda: driver.iface.part(),
                   history_extra=history, accuracy=accuracy, remesh=driver)
     acc = summary["accuracy"]

@@ -31,6 +31,8 @@
 #     mpirun -n 2 python scenarios/intersection.py --regularized [--quick] [--out DIR]
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from mpi4py import MPI
 
@@ -174,7 +176,7 @@ def growth_driver(scene, regularized, degree, args):
         tips.append(Tip((dom.wellbore_radius + pf.length) * d, d))
     h = dom.h_crack
     margin = dom.half_width - 2 * h
-    return GrowthDriver(build, tips, GrowthParams(r=4 * h), da=2 * h, threshold=damage.s_onset,
+    return GrowthDriver(build, tips, GrowthParams(r=args.growth_r * h), da=2 * h, threshold=damage.s_onset,
                         tags=[PATH + k for k in range(len(tips))], domain_size=2 * dom.half_width,
                         inside=lambda p: abs(p[0]) < margin and abs(p[1]) < margin,
                         obstacles=[fracture_points(nf) for nf in nfs])
@@ -199,7 +201,12 @@ def main(argv=None, regularized=None):
                         help="EXPERIMENTAL: free crack growth from the perforation tips with remeshing, instead "
                              "of the pre-meshed paths (the tips kink at their first extensions, in the early "
                              "transient: see the README)")
+    parser.add_argument("--growth-r", type=float, default=4.0,
+                        help="with --growth: sampling distance of the growth criterion ahead of a tip, in crack "
+                             "facet sizes h (default 4)")
     args = parser.parse_args(argv)
+    if not args.growth_r > 0:
+        parser.error(f"--growth-r must be > 0 (a distance in facet sizes); got {args.growth_r}")
     reg = args.reg if regularized is None else regularized
     name = "intersection_regularized" if reg else "intersection_unregularized"
     degree = args.degree or 2
@@ -207,12 +214,13 @@ def main(argv=None, regularized=None):
     if not args.growth:
         scene.set(*setup(regularized=reg, degree=degree, quick=args.quick, x_nf=args.x_nf, tau=args.tau,
                          nf_tau=args.nf_tau))
-    else:
-        driver = growth_driver(scene, reg, degree, args)
-    mon = Monitor(scene, scene.fm.naturals)
     t_end = args.t_end or (1.0e-3 if not args.quick else 1.0e-3)
     opts = RunOptions(t_end=t_end, out=args.out or f"results/{name}", frames=args.frames or 40,
                       restart=args.restart, history_every=1)
+    if args.growth:
+        driver = growth_driver(scene, reg, degree, args)
+        driver.record = Path(opts.out) / "growth.json"  # the grown paths, written as they grow
+    mon = Monitor(scene, scene.fm.naturals)
 
     def accuracy(s):
         acc = mon.accuracy()

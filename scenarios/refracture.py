@@ -59,14 +59,16 @@ def setup(comm=MPI.COMM_WORLD, quick=False, degree=2, tau=30e-6):
 # ## What we watch
 # * after the removal: the fraction of the network in separation, the smallest
 #   opening (never below δ'₀ δ̃) and the total energy (no growth);
-# * after re-loading: when each network facet first reaches f_p > 0.5, and its
-#   distance along the network from the perforations.
+# * after re-loading: when each network facet that had unloaded (f_p ≤ 0.5 when the
+#   load returns) first reaches f_p > 0.5, and its distance along the network from
+#   the perforations.
 class Monitor:
     def __init__(self, solver, iface, hyd, t_off, t_on):
         self.s, self.iface, self.hyd = solver, iface, hyd
         self.t_off, self.t_on = t_off, t_on
         nf = iface.facets.size
         self.t_reach = np.full(nf, np.inf)
+        self.still_loaded = None  # facets with f_p > 0.5 when the load returns (never unloaded)
         self.energy_after_off = []
         self.sep_fraction = []
 
@@ -84,7 +86,10 @@ class Monitor:
         if t >= self.t_off:
             self.energy_after_off.append((t, solver.energy.balance_error))
         if t >= self.t_on:
-            hit = (hyd.fp_q.mean(axis=1) > 0.5) & ~np.isfinite(self.t_reach)
+            loaded = hyd.fp_q.mean(axis=1) > 0.5
+            if self.still_loaded is None:
+                self.still_loaded = loaded.copy()
+            hit = loaded & ~np.isfinite(self.t_reach)
             self.t_reach[hit] = t
 
     def history(self):
@@ -95,14 +100,17 @@ class Monitor:
     def accuracy(self):
         iface, hyd, comm = self.iface, self.hyd, self.s.comm
         # order of re-loading against the distance along the network (gathered on all ranks)
-        parts = comm.allgather((hyd.vertices, iface.length, hyd.network, hyd.source, self.t_reach))
+        still = self.still_loaded if self.still_loaded is not None else np.zeros(self.t_reach.size, bool)
+        parts = comm.allgather((hyd.vertices, iface.length, hyd.network, hyd.source, self.t_reach, still))
         V = np.concatenate([p[0] for p in parts]).reshape(-1, 2)
         L = np.concatenate([p[1] for p in parts])
         A = np.concatenate([p[2] for p in parts]).astype(bool)
         S = np.concatenate([p[3] for p in parts]).astype(bool)
         T = np.concatenate([p[4] for p in parts])
+        K = np.concatenate([p[5] for p in parts]).astype(bool)
         dist = network_distance(V, L, A, S)
-        sel = A & ~S & np.isfinite(T) & np.isfinite(dist)
+        # the order counts the facets that were unloaded when the load returned
+        sel = A & ~S & ~K & np.isfinite(T) & np.isfinite(dist)
         rho = float("nan")
         if sel.sum() > 2:
             from scipy.stats import spearmanr
@@ -115,6 +123,7 @@ class Monitor:
         return {
             "reload_order_spearman": rho,
             "reloaded_facets": int(sel.sum()), "network_facets": int((A & ~S).sum()),
+            "loaded_when_reloading": int((A & ~S & K).sum()),
             # energy may rise while the confinement closes the cracks (work relative to sigma0);
             # spurious growth shows as a growing balance error
             "balance_error_growth_while_off": float(e[-1, 1] - e[0, 1]) if len(e) > 1 else 0.0,

@@ -125,6 +125,13 @@ def test_crack_growth_scenario_on_one_and_two_ranks(tmp_path, run_command, mpiru
     assert abs(s[1]["energy"]["balance_error_relative"]) < 1e-3
     for key in ("remeshes", "extensions", "tip0_first_kink_deg", "tip1_first_kink_deg", "tip0_grown_m", "tip1_grown_m"):
         assert s[2]["accuracy"][key] == pytest.approx(acc[key], rel=1e-9, abs=1e-12), key
+    # the grown paths are kept in growth.json, and agree with the summary
+    g = json.loads((tmp_path / "n1" / "growth.json").read_text())
+    assert g["remeshes"] == acc["remeshes"] and len(g["events"]) == acc["extensions"]
+    p0 = np.array(g["paths"][0])
+    assert np.linalg.norm(np.diff(p0, axis=0), axis=1).sum() == pytest.approx(acc["tip0_grown_m"], rel=1e-9)
+    first0 = next(e for e in g["events"] if e["tip"] == 0)
+    assert first0["angle_deg"] == pytest.approx(acc["tip0_first_kink_deg"], rel=1e-9)
 
 
 def test_growth_bad_input_and_failed_remesh(tmp_path):

@@ -30,6 +30,8 @@ def test_cracks_close_to_contact_without_energy_growth(summary):
 
 def test_reloading_spreads_from_the_perforations(summary):
     acc = summary["accuracy"]
-    assert acc["reloaded_facets"] == acc["network_facets"] > 10
+    # every facet that had unloaded is loaded again, and most had unloaded
+    assert acc["reloaded_facets"] + acc["loaded_when_reloading"] == acc["network_facets"]
+    assert acc["reloaded_facets"] > max(10, acc["loaded_when_reloading"])
     # facets reach f_p > 0.5 in the order of their distance along the network from the perforations
     assert acc["reload_order_spearman"] > 0.9, acc
