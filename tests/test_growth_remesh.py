@@ -12,6 +12,7 @@ debonded the new segment (mean D >= 0.9), so that the next criterion sees the cr
 the segment ends; repeat.
 """
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -159,3 +160,27 @@ def test_growth_bad_input_and_failed_remesh(tmp_path):
         run(driver.solver, RunOptions(t_end=1e-3, out=tmp_path, frames=4), name="g", remesh=driver)
     assert "last good state" in str(info.value)
     assert (tmp_path / "g.pvd").exists() and (tmp_path / "checkpoint").exists()
+
+
+def test_intersection_free_growth_runs_radially(tmp_path, run_command):
+    """``intersection_regularized.py --quick --growth`` (four perforations from a pressurised
+    wellbore, free growth with the tensile criterion): by the 4-fold symmetry of the
+    perforations the exact direction is radial.  Over its first five extensions (to 0.65 ms)
+    every tip's path stays within 2° of it overall (the mode-I tolerance), each segment within
+    5° (the tolerance of a predicted kink angle: the criterion is flat near its maximum, and
+    the passing waves and the natural fracture break the symmetry slightly)."""
+    import json
+    from pathlib import Path
+    script = Path(__file__).resolve().parents[1] / "scenarios" / "intersection_regularized.py"
+    run_command([sys.executable, script, "--quick", "--growth", "--t-end", "6.5e-4", "--frames", "2",
+                 "--out", tmp_path], timeout=600)
+    g = json.loads((tmp_path / "growth.json").read_text())
+    for i, path in enumerate(g["paths"]):
+        p = np.array(path)
+        assert len(p) >= 6, f"tip {i} grew {len(p) - 1} segments"
+        radial = p[0] / np.linalg.norm(p[0])
+        seg = np.diff(p[:6], axis=0)
+        ang = np.degrees(np.arctan2(seg[:, 0] * radial[1] - seg[:, 1] * radial[0], seg @ radial))
+        assert np.abs(ang).max() < 5.0, (i, ang)
+        total = p[5] - p[0]
+        assert abs(np.degrees(np.arctan2(total[0] * radial[1] - total[1] * radial[0], total @ radial))) < 2.0
