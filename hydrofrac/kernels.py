@@ -42,8 +42,8 @@ def pack_facets(normal, Zp, Zm, Zt, k, delta_scale, v_scale, tau, weights, phi_p
     P[:, _ZPN], P[:, _ZPT], P[:, _ZMN], P[:, _ZMT] = Zp[:, 0], Zp[:, 1], Zm[:, 0], Zm[:, 1]
     P[:, _ZT], P[:, _K], P[:, _DS], P[:, _VS], P[:, _TAU] = Zt[:, 0], k, delta_scale, v_scale, tau
     P[:, _W:_W + nq] = weights
-    P[:, _W + nq:_W + nq + nq * nb] = phi_p.reshape(nf, -1)
-    P[:, _W + nq + nq * nb:] = phi_m.reshape(nf, -1)
+    P[:, _W + nq:_W + nq + nq * nb] = phi_p.reshape(nf, nq * nb)
+    P[:, _W + nq + nq * nb:] = phi_m.reshape(nf, nq * nb)
     I = np.empty((nf, 2 + 2 * nb), dtype=np.int64)
     I[:, 0], I[:, 1] = cells_p, cells_m
     I[:, 2:2 + nb], I[:, 2 + nb:] = dofs_p, dofs_m

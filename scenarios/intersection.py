@@ -156,8 +156,9 @@ class Monitor:
 # with the damage law's β = 1 the shear of the compressive pressure waves around the
 # perforations (|τ| of several MPa where σ_n ≈ −15 MPa) outweighs the narrow tensile zone
 # ahead of the tips in the first 100-200 µs, and the cracks curl around the wellbore.
-# With β = 0 they run out radially (within ±4°) for 5-7 extensions, then kink once they
-# outrun the loaded part of the crack; the pre-meshed paths stay the default.
+# With β = 0 they run out radially (within ±4°) for 5-7 extensions, then kink: by then
+# the tensile zone ahead of a tip is about 0.1 m, narrower than the sampling distance; the
+# pre-meshed paths stay the default.
 def growth_driver(scene, regularized, degree, args):
     from hydrofrac.growth import GrowthDriver, GrowthParams, Tip
     from hydrofrac.meshes.fractures import PATH, fracture_points
@@ -179,7 +180,8 @@ def growth_driver(scene, regularized, degree, args):
         tips.append(Tip((dom.wellbore_radius + pf.length) * d, d))
     h = dom.h_crack
     margin = dom.half_width - 2 * h
-    return GrowthDriver(build, tips, GrowthParams(r=args.growth_r * h, beta=args.growth_beta), da=2 * h, threshold=damage.s_onset,
+    return GrowthDriver(build, tips, GrowthParams(r=args.growth_r * h, beta=args.growth_beta), da=args.growth_da * h,
+                        threshold=damage.s_onset,
                         tags=[PATH + k for k in range(len(tips))], domain_size=2 * dom.half_width,
                         inside=lambda p: abs(p[0]) < margin and abs(p[1]) < margin,
                         obstacles=[fracture_points(nf) for nf in nfs])
@@ -211,9 +213,13 @@ def main(argv=None, regularized=None):
                         help="with --growth: shear factor beta of the growth criterion (default 0: the largest "
                              "tensile normal traction; 1 = the damage law's, which here follows the shear of the "
                              "compressive pressure waves and curls the cracks: see the README)")
+    parser.add_argument("--growth-da", type=float, default=2.0,
+                        help="with --growth: length of a growth step, in crack facet sizes h (default 2)")
     args = parser.parse_args(argv)
     if not args.growth_r > 0:
         parser.error(f"--growth-r must be > 0 (a distance in facet sizes); got {args.growth_r}")
+    if not args.growth_da > 0:
+        parser.error(f"--growth-da must be > 0 (a length in facet sizes); got {args.growth_da}")
     reg = args.reg if regularized is None else regularized
     name = "intersection_regularized" if reg else "intersection_unregularized"
     degree = args.degree or 2
