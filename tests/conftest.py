@@ -52,3 +52,15 @@ def mpirun():
     if shutil.which("mpirun") is None:
         pytest.skip("mpirun is not installed (Debian package openmpi-bin, pulled in by python3-dolfinx)")
     return lambda n: ["mpirun", "--oversubscribe", "-n", str(n), sys.executable]
+
+
+def pytest_exception_interact(node, call, report):
+    """Under mpirun, a test that fails on one rank leaves the others waiting in their next
+    collective until the suite's timeout: print the failure and abort all ranks at once."""
+    from mpi4py import MPI
+    comm = MPI.COMM_WORLD
+    if comm.size > 1:
+        sys.stderr.write(f"\n[rank {comm.rank}] {report.nodeid} failed; aborting all ranks:\n"
+                         f"{report.longreprtext}\n")
+        sys.stderr.flush()
+        comm.Abort(1)
