@@ -284,6 +284,7 @@ class GrowthDriver:
             return None
         ready = [len(p) < 2 or segment_damage(self.iface, self.tags[i], p[-2], p[-1]) >= self.ready_damage
                  for i, p in enumerate(self.paths)]
+        before_state = self.checkpoint_state()
         before = [(t.point.copy(), t.direction.copy()) for t in self.tips]
         moved = advance_tips(solver, self.tips, self.params, self.da, self.threshold, ready=ready)
         grown = []
@@ -304,7 +305,13 @@ class GrowthDriver:
         if not grown:
             return None
         from .transfer import continue_run, transfer_fields, transfer_interface
-        new_solver, new_iface = self.build(self._polylines())
+        try:
+            new_solver, new_iface = self.build(self._polylines())
+        except Exception:
+            # keep the driver at the last good geometry (the one a checkpoint of the last good
+            # state belongs to); the failing geometry is in the exception's message and files
+            self.restore_state(before_state)
+            raise
         self._old_meshes.append(solver.mesh)
         transfer_fields(solver, new_solver)
         continue_run(solver, new_solver)
@@ -313,6 +320,38 @@ class GrowthDriver:
         self.count += 1
         self.write()
         return new_solver
+
+    def checkpoint_state(self):
+        """The geometry state (JSON text): paths, tips, events, joins, remesh count."""
+        import json
+        return json.dumps({
+            "paths": [np.asarray(p).tolist() for p in self.paths],
+            "tips": [{"point": np.asarray(t.point).tolist(), "direction": np.asarray(t.direction).tolist(),
+                      "active": bool(t.active)} for t in self.tips],
+            "events": [list(map(float, e)) for e in self.events],
+            "joined": [[float(t), int(i), np.asarray(p).tolist()] for t, i, p in self.joined],
+            "count": self.count}, default=float)
+
+    def restore_state(self, text):
+        """Set the geometry state from :meth:`checkpoint_state` (no remesh)."""
+        import json
+        d = json.loads(text)
+        if len(d["tips"]) != len(self.tips):
+            raise ValueError(f"checkpoint has {len(d['tips'])} crack tips, this run {len(self.tips)}")
+        self.paths = [[np.asarray(q, float) for q in p] for p in d["paths"]]
+        for t, st in zip(self.tips, d["tips"]):
+            t.point, t.direction, t.active = np.asarray(st["point"]), np.asarray(st["direction"]), st["active"]
+        self.events = [(e[0], int(e[1]), e[2], e[3]) for e in d["events"]]
+        self.joined = [(t, i, np.asarray(p)) for t, i, p in d["joined"]]
+        self.count = int(d["count"])
+
+    def restart(self, text):
+        """Rebuild the mesh of a checkpoint's geometry state; returns the new solver (at its
+        initial state: the checkpoint's fields are loaded into it next)."""
+        self.restore_state(text)
+        self._old_meshes.append(self.solver.mesh)
+        self.solver, self.iface = self.build(self._polylines())
+        return self.solver
 
     def write(self, path=None):
         """Write the paths, events and joins as JSON (rank 0) to ``path`` or ``record``."""

@@ -91,7 +91,8 @@ class Checkpoint:
     def path(self, rank=None):
         return self.dir / f"state_r{self.comm.rank if rank is None else rank}.npz"
 
-    def save(self, solver: Solver, series: VTKSeries, frames_done: int, x=None, t=None, step=None, ext_states=None):
+    def save(self, solver: Solver, series: VTKSeries, frames_done: int, x=None, t=None, step=None, ext_states=None,
+             geometry=""):
         if self.comm.rank == 0:
             self.dir.mkdir(parents=True, exist_ok=True)
         self.comm.barrier()
@@ -100,7 +101,8 @@ class Checkpoint:
         data = dict(x=x.array_r.copy(), t=solver.t if t is None else t, step=solver.step_count if step is None else step,
                     ranks=self.comm.size, ndofs=solver.num_dofs, frames_done=frames_done,
                     energy=json.dumps(solver.energy.__dict__), frames=json.dumps(series.frames),
-                    last_rates=json.dumps(solver._last_rates))
+                    last_rates=json.dumps(solver._last_rates), geometry=geometry,
+                    mesh_check=_mesh_checksum(solver))
         for i, e in enumerate(ext):
             for k, v in e.items():
                 data[f"ext{i}_{k}"] = v
@@ -112,12 +114,21 @@ class Checkpoint:
     def exists(self):
         return all(self.comm.allgather(self.path().exists()))
 
+    def geometry(self):
+        """The crack-geometry state saved with the checkpoint ("" for a run that does not
+        remesh)."""
+        d = np.load(self.path(), allow_pickle=False)
+        return str(d["geometry"]) if "geometry" in d.files else ""
+
     def load(self, solver: Solver, series: VTKSeries):
         d = np.load(self.path(), allow_pickle=False)
         if int(d["ranks"]) != self.comm.size or int(d["ndofs"]) != solver.num_dofs:
             raise ValueError(f"checkpoint in {self.dir} was written by {int(d['ranks'])} ranks with "
                              f"{int(d['ndofs'])} DOFs; this run has {self.comm.size} ranks and {solver.num_dofs} DOFs. "
                              "Restart with the same mesh, degree and number of ranks")
+        if "mesh_check" in d.files and not np.isclose(float(d["mesh_check"]), _mesh_checksum(solver), rtol=1e-12):
+            raise ValueError(f"checkpoint in {self.dir} was written on a different mesh or partition (same number "
+                             "of DOFs, other cells on this rank). Restart with the same mesh and number of ranks")
         solver.x.array[:] = d["x"]
         solver.t = float(d["t"])
         solver.step_count = int(d["step"])
@@ -129,6 +140,12 @@ class Checkpoint:
             e.restore_state({k.split("_", 1)[1]: d[k] for k in d.files if k.startswith(f"ext{i}_")})
         series.restore(json.loads(str(d["frames"])))
         return int(d["frames_done"])
+
+
+def _mesh_checksum(solver):
+    """A number that changes with the cells (and their order) of this rank's part of the mesh."""
+    v = compat.cell_vertex_coords(solver.mesh)[: compat.num_cells_local(solver.mesh)]
+    return float((v.reshape(len(v), -1) * np.arange(1, 7)).sum() + np.arange(len(v)) @ v[:, 0, 0])
 
 
 def run(solver: Solver, options: RunOptions, name: str = "solution",
@@ -145,11 +162,10 @@ def run(solver: Solver, options: RunOptions, name: str = "solution",
     on_step : called after every step (e.g. crack growth, connectivity updates)
     remesh : called after every step; returns a new solver (fields and state transferred,
         e.g. :class:`hydrofrac.growth.GrowthDriver`) to continue with, or None.  Its time is
-        reported as "remesh" in the split and the number of remeshes in the summary.
+        reported as "remesh" in the split and the number of remeshes in the summary.  If it
+        has ``checkpoint_state()`` (JSON text) and ``restart(text) -> solver``, checkpoints
+        hold the crack geometry too, and a restart rebuilds that mesh before loading the fields.
     """
-    if remesh is not None and options.restart:
-        raise ValueError("--restart is not supported for runs that remesh (crack growth): the checkpoint "
-                         "holds the fields of the last mesh, not its geometry; rerun without --restart")
     comm = solver.comm
     out = Path(options.out)
     if comm.rank == 0:
@@ -161,8 +177,20 @@ def run(solver: Solver, options: RunOptions, name: str = "solution",
     frame_every = max(1, nsteps // options.frames)
     frames_done = 0
     history_path = out / "history.csv"
+    def geometry():
+        return remesh.checkpoint_state() if remesh is not None and hasattr(remesh, "checkpoint_state") else ""
+
     if options.restart and ckpt.exists():
+        saved = ckpt.geometry()
+        if saved:
+            if remesh is None or not hasattr(remesh, "restart"):
+                raise ValueError(f"checkpoint in {ckpt.dir} is of a run that remeshed (crack growth); restart it "
+                                 "with the same growth options")
+            solver = remesh.restart(saved)  # the mesh of the checkpoint's crack geometry
         frames_done = ckpt.load(solver, series)
+        if saved:  # the step count continues on the last mesh's time step (as after a remesh)
+            nsteps = solver.step_count + max(1, int(math.ceil((options.t_end - solver.t) / solver.dt - 1e-9)))
+            frame_every = max(1, (nsteps - solver.step_count) // max(1, options.frames - frames_done))
         log(comm, f"[hydrofrac] restarted from {ckpt.dir} at step {solver.step_count}, t = {solver.t:.6g} s")
         hist_mode = "a"
     else:
@@ -231,7 +259,7 @@ def run(solver: Solver, options: RunOptions, name: str = "solution",
                     new = remesh(solver)
                 except Exception as err:  # e.g. Gmsh cannot mesh the extended geometry
                     series.write(solver.t, parts())
-                    ckpt.save(solver, series, frames_done + 1)
+                    ckpt.save(solver, series, frames_done + 1, geometry=geometry())
                     msg = (f"[hydrofrac] remeshing after crack growth failed at t = {solver.t:.6g} s: {err}\n"
                            f"[hydrofrac] stopped. The last good state (before the extension) is in "
                            f"{series.pvd_path} and {ckpt.dir}")
@@ -259,7 +287,7 @@ def run(solver: Solver, options: RunOptions, name: str = "solution",
                 solver.timers.add("output", time.perf_counter() - t0)
             now = time.perf_counter()
             if now - last_ckpt > options.checkpoint_wall:
-                ckpt.save(solver, series, frames_done)
+                ckpt.save(solver, series, frames_done, geometry=geometry())
                 last_ckpt = now
             if now - last_progress > options.progress_wall and comm.rank == 0:
                 done = solver.step_count - step0
@@ -276,7 +304,7 @@ def run(solver: Solver, options: RunOptions, name: str = "solution",
         for e, st in zip(solver.extensions, good[2]):
             e.restore_state(st)
         series.write(solver.t, parts())
-        ckpt.save(solver, series, frames_done + 1)
+        ckpt.save(solver, series, frames_done + 1, geometry=geometry())
         msg = (f"{err}\n[hydrofrac] stopped. The last good state (t = {solver.t:.6g} s, before the blow-up at "
                f"t = {t_bad:.6g} s) is in {series.pvd_path} and {ckpt.dir}")
         log(comm, msg)
@@ -284,7 +312,7 @@ def run(solver: Solver, options: RunOptions, name: str = "solution",
             hist_file.close()
         raise BlowUpError(msg) from None
     wall = time.perf_counter() - wall0
-    ckpt.save(solver, series, frames_done)
+    ckpt.save(solver, series, frames_done, geometry=geometry())
     if hist_file is not None:
         hist_file.close()
 

@@ -85,7 +85,7 @@ def main(argv=None):
         return out
 
     opts = RunOptions(t_end=args.t_end or (1.5e-3 if args.quick else 3.0e-3), out=args.out or "results/crack_growth",
-                      frames=args.frames or 30)
+                      frames=args.frames or 30, restart=args.restart)
     driver.record = Path(opts.out) / "growth.json"  # the grown paths, written as they grow
     summary = run(driver.solver, opts, name="crack_growth", extra_parts=lambda: driver.iface.part(),
                   history_extra=history, accuracy=accuracy, remesh=driver)

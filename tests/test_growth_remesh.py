@@ -133,6 +133,19 @@ def test_crack_growth_scenario_on_one_and_two_ranks(tmp_path, run_command, mpiru
     assert np.linalg.norm(np.diff(p0, axis=0), axis=1).sum() == pytest.approx(acc["tip0_grown_m"], rel=1e-9)
     first0 = next(e for e in g["events"] if e["tip"] == 0)
     assert first0["angle_deg"] == pytest.approx(acc["tip0_first_kink_deg"], rel=1e-9)
+    # a run stopped half way (after some remeshes) and restarted from its checkpoint, which
+    # holds the crack geometry, rebuilds that mesh and ends exactly where the straight run does
+    split = tmp_path / "split"
+    run_command([*mpirun(1), script, "--quick", "--out", split, "--t-end", "8e-4"], timeout=600)
+    half = json.loads((split / "summary.json").read_text())["accuracy"]["remeshes"]
+    assert 0 < half < acc["remeshes"]
+    run_command([*mpirun(1), script, "--quick", "--out", split, "--restart"], timeout=600)
+    r = json.loads((split / "summary.json").read_text())
+    g2 = json.loads((split / "growth.json").read_text())
+    assert [np.array(p).tolist() for p in g2["paths"]] == [np.array(p).tolist() for p in g["paths"]]
+    assert r["steps"] == s[1]["steps"] and r["accuracy"]["remeshes"] == acc["remeshes"]
+    for key in ("kinetic", "strain", "work_in", "dissipated_damage", "transfer_loss", "balance_error"):
+        assert r["energy"][key] == pytest.approx(s[1]["energy"][key], rel=1e-12, abs=1e-12), key
 
 
 def test_growth_bad_input_and_failed_remesh(tmp_path):
