@@ -28,6 +28,26 @@ from . import compat
 from .forms import elastodynamics as ef
 
 
+def elastic_operators(V, material):
+    """(K, M, m) on the CG vector space V: stiffness and consistent mass (assembled PETSc
+    matrices) and the HRZ-lumped mass diagonal (local array): the consistent diagonal scaled
+    to the total mass (both components)."""
+    mesh = V.mesh
+    u, w = ufl.TrialFunction(V), ufl.TestFunction(V)
+    lam, mu, rho = material.lam, material.mu, material.rho
+    eps = lambda a: ufl.sym(ufl.grad(a))  # noqa: E731
+    sig = lambda a: lam * ufl.tr(eps(a)) * ufl.Identity(2) + 2 * mu * eps(a)  # noqa: E731
+    dx = compat.measure("dx", mesh)
+    K = compat.assemble_matrix(compat.form(ufl.inner(sig(u), eps(w)) * dx))
+    M = compat.assemble_matrix(compat.form(rho * ufl.inner(u, w) * dx))
+    diag = M.getDiagonal()
+    d = diag.array_r.copy()
+    diag.destroy()
+    area = compat.assemble_scalar(compat.form(1.0 * dx), mesh.comm)
+    total = mesh.comm.allreduce(float(d.sum()), op=MPI.SUM)
+    return K, M, d * (2 * rho * area / total)
+
+
 class CentralDifferenceCG:
     """Explicit central-difference CG P_k solver with a Dirichlet boundary from an exact
     displacement ``u_exact(x, t)`` (x: (3, m) -> (2, m))."""
@@ -42,19 +62,8 @@ class CentralDifferenceCG:
         self.u_exact = u_exact
         V = compat.cg_vector_space(mesh, degree)
         self.V = V
-        u, w = ufl.TrialFunction(V), ufl.TestFunction(V)
-        lam, mu, rho = material.lam, material.mu, material.rho
-        eps = lambda a: ufl.sym(ufl.grad(a))  # noqa: E731
-        sig = lambda a: lam * ufl.tr(eps(a)) * ufl.Identity(2) + 2 * mu * eps(a)  # noqa: E731
-        dx = compat.measure("dx", mesh)
-        self.K = compat.assemble_matrix(compat.form(ufl.inner(sig(u), eps(w)) * dx))
-        M = compat.assemble_matrix(compat.form(rho * ufl.inner(u, w) * dx))
-        diag = M.getDiagonal()
+        self.K, M, self.m = elastic_operators(V, material)
         own = compat.dof_counts(V)[0] * 2
-        d = diag.array_r.copy()
-        area = compat.assemble_scalar(compat.form(1.0 * dx), self.comm)
-        total = self.comm.allreduce(float(d.sum()), op=MPI.SUM)
-        self.m = d * (2 * rho * area / total)  # HRZ: diagonal scaled to the total mass (2 components)
         self.ksp = None
         ext = compat.exterior_facet_indices(mesh)
         b = compat.boundary_dofs(V, ext)
@@ -75,7 +84,6 @@ class CentralDifferenceCG:
             self.acc = compat.create_vector(V)
         else:
             M.destroy()
-        diag.destroy()
         X = compat.dof_coordinates(V)[: own // 2].T
         self.Xb = X[:, b]
         self.Xall = X

@@ -31,6 +31,7 @@ import ufl
 from mpi4py import MPI
 
 from . import compat
+from .cg_baseline import elastic_operators
 
 
 def split_mesh(mesh, crack_facets, side):
@@ -85,17 +86,10 @@ class CrackCG:
         self.mesh, self.comm, self.degree, self.mat = mesh, mesh.comm, degree, material
         V = compat.cg_vector_space(mesh, degree)
         self.V = V
-        u, w = ufl.TrialFunction(V), ufl.TestFunction(V)
-        lam, mu, rho = material.lam, material.mu, material.rho
-        eps = lambda a: ufl.sym(ufl.grad(a))  # noqa: E731
-        sig = lambda a: lam * ufl.tr(eps(a)) * ufl.Identity(2) + 2 * mu * eps(a)  # noqa: E731
-        dx = compat.measure("dx", mesh)
-        self.K = compat.assemble_matrix(compat.form(ufl.inner(sig(u), eps(w)) * dx))
-        M = compat.assemble_matrix(compat.form(rho * ufl.inner(u, w) * dx))
-        d = M.getDiagonal().array_r.copy()
-        area = compat.assemble_scalar(compat.form(1.0 * dx), self.comm)
-        self.m = d * (2 * rho * area / d.sum())  # HRZ lumping (cg_baseline)
+        self.K, M, self.m = elastic_operators(V, material)  # HRZ-lumped mass m
         M.destroy()
+        rho = material.rho
+        u, w = ufl.TrialFunction(V), ufl.TestFunction(V)
         # tags: 1 pressure, 2 absorbing
         groups = [(np.asarray(pressure[0]) if pressure else np.empty(0, np.int32), 1),
                   (np.asarray(absorbing) if absorbing is not None else np.empty(0, np.int32), 2)]

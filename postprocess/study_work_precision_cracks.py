@@ -173,36 +173,26 @@ def main(argv=None):
     args = study_parser(__doc__).parse_args(argv)
     comm = MPI.COMM_WORLD
     bars, sned = [], []
-    for p, sizes in (QUICK_BARS if args.quick else BARS).items():
-        for nx in sizes:
-            bars.append(bars_case(p, nx))
-            r = bars[-1]
-            if comm.rank == 0:
-                print(f"[study] bars p={p} nx={nx}: {r['dofs']} DOFs, wall {r['wall_s']:.2f} s, stress error "
-                      f"{r['stress_rel_error']:.2e}, duration error {r['duration_error_us']:.2f} µs, rebound "
-                      f"velocity error {r['velocity_rel_error']:.2e}", flush=True)
-    for k, sizes in (QUICK_CG_BARS if args.quick else CG_BARS).items():
-        for nx in sizes:
-            bars.append(cg_bars_case(k, nx))
-            r = bars[-1]
-            if comm.rank == 0:
-                print(f"[study] bars CG P{k} nx={nx}: {r['dofs']} DOFs, wall {r['wall_s']:.3f} s, stress error "
-                      f"{r['stress_rel_error']:.2e}, duration error {r['duration_error_us']:.2f} µs, rebound "
-                      f"velocity error {r['velocity_rel_error']:.2e}", flush=True)
-    for p, sizes in (QUICK_SNEDDON if args.quick else SNEDDON).items():
-        for h in sizes:
-            sned.append(sneddon_case(p, h))
-            r = sned[-1]
-            if comm.rank == 0:
-                print(f"[study] sneddon p={p} h={h}: {r['dofs']} DOFs, wall {r['wall_s']:.2f} s, opening error "
-                      f"{r['opening_rel_error']:.3%}", flush=True)
-    for k, sizes in (QUICK_CG_SNEDDON if args.quick else CG_SNEDDON).items():
-        for h in sizes:
-            sned.append(cg_sneddon_case(k, h))
-            r = sned[-1]
-            if comm.rank == 0:
-                print(f"[study] sneddon CG P{k} h={h}: {r['dofs']} DOFs, wall {r['wall_s']:.3f} s, opening error "
-                      f"{r['opening_rel_error']:.3%}", flush=True)
+
+    def bars_line(r):
+        return (f"bars {r['method']} nx={r['size']}: {r['dofs']} DOFs, wall {r['wall_s']:.3f} s, stress error "
+                f"{r['stress_rel_error']:.2e}, duration error {r['duration_error_us']:.2f} µs, rebound velocity "
+                f"error {r['velocity_rel_error']:.2e}")
+
+    def sneddon_line(r):
+        return (f"sneddon {r['method']} h={r['size']}: {r['dofs']} DOFs, wall {r['wall_s']:.3f} s, opening error "
+                f"{r['opening_rel_error']:.3%}")
+
+    q = args.quick
+    for rows, case, sizes, line in ((bars, bars_case, QUICK_BARS if q else BARS, bars_line),
+                                    (bars, cg_bars_case, QUICK_CG_BARS if q else CG_BARS, bars_line),
+                                    (sned, sneddon_case, QUICK_SNEDDON if q else SNEDDON, sneddon_line),
+                                    (sned, cg_sneddon_case, QUICK_CG_SNEDDON if q else CG_SNEDDON, sneddon_line)):
+        for p, cases in sizes.items():
+            for size in cases:
+                rows.append(case(p, size))
+                if comm.rank == 0:
+                    print("[study] " + line(rows[-1]), flush=True)
     if comm.rank == 0:
         for name, rows, key, target in (("bars, contact stress", bars, "stress_rel_error", 1e-2),
                                         ("bars, contact stress", bars, "stress_rel_error", 1e-4),
