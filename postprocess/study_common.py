@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 from mpi4py import MPI
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
@@ -67,3 +68,36 @@ def wall_at(rows, target, key):
             if r[key] <= target:
                 best = min(best, r["wall_s"])
     return best
+
+
+def log_axes(*axes):
+    """Grid on both scales and a legend, as every study chart has them."""
+    for ax in axes:
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+
+
+def save_figure(fig, png):
+    """Lay out, write and close a study chart."""
+    import matplotlib.pyplot as plt
+    fig.tight_layout()
+    fig.savefig(png)
+    plt.close(fig)
+
+
+def plane_wave_solver(comm, p, N, material, state, travel):
+    """DG solver on the unit square (``N`` x ``N`` cells) with the exact plane wave
+    ``state(x, t)`` as initial state and as outer boundary state, and a time step that ends
+    exactly when the wave has travelled ``travel`` (at c_d).  Returns (solver, steps)."""
+    from hydrofrac import compat
+    from hydrofrac.boundary import OuterState
+    from hydrofrac.solver import Solver
+    mesh = compat.create_rectangle(comm, (0.0, 0.0), (1.0, 1.0), N, N)
+    facets = compat.locate_boundary_facets(mesh, lambda x: np.full(x.shape[1], True))
+    tags = compat.meshtags(mesh, 1, facets, np.full(facets.size, 1))
+    solver = Solver(mesh, p, material, facet_tags=tags, bcs=[OuterState(1, state)])
+    solver.set_initial_state(lambda x: state(x, 0.0))
+    t_end = travel / material.cd
+    steps = int(math.ceil(t_end / solver.dt - 1e-9))
+    solver.dt = t_end / steps
+    return solver, steps

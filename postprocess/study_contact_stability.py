@@ -41,7 +41,7 @@ from hydrofrac import ROCK
 from hydrofrac.boundary import Symmetry
 from hydrofrac.interface import ContactParams, Crack, Interface, crack_facet_indices
 from hydrofrac.postprocess.rundata import write_csv
-from hydrofrac.postprocess.study_common import scenario, study_parser
+from hydrofrac.postprocess.study_common import log_axes, save_figure, scenario, study_parser
 from hydrofrac.solver import BlowUpError, Solver
 
 CRACK, SIDES = scenario("two_bars").CRACK, scenario("two_bars").SIDES
@@ -111,23 +111,14 @@ def main(argv=None):
     deltas = DELTA0S[::3] if args.quick else DELTA0S
     rows, series = [], {}
     dt_cfl = run_case(mesh, tags, ContactParams(), 1.0, t_window=0.0)[1]
-    for kappa in kappas:
-        r = largest_stable(mesh, tags, ContactParams(penalty=kappa))
-        rows.append({"method": "penalty", "parameter": kappa, **{k: r[k] for k in ("stable_dt", "halvings",
-                                                                                   "penetration")},
-                     "chatter": chatter(r["sn"])})
-        series[f"penalty kappa={kappa:.0e}"] = (r["t"], r["sn"])
-    for d0 in deltas:
-        r = largest_stable(mesh, tags, ContactParams(delta0=d0))
-        rows.append({"method": "riemann", "parameter": d0, **{k: r[k] for k in ("stable_dt", "halvings",
-                                                                                "penetration")},
-                     "chatter": chatter(r["sn"])})
-        series[f"regularised eta, delta0'={d0:g}"] = (r["t"], r["sn"])
-    r = largest_stable(mesh, tags, ContactParams(regularized=False))
-    rows.append({"method": "exact_eta", "parameter": 0.0, **{k: r[k] for k in ("stable_dt", "halvings",
-                                                                                "penetration")},
-                 "chatter": chatter(r["sn"])})
-    series["unregularised eta"] = (r["t"], r["sn"])
+    cases = ([("penalty", kappa, ContactParams(penalty=kappa), f"penalty kappa={kappa:.0e}") for kappa in kappas]
+             + [("riemann", d0, ContactParams(delta0=d0), f"regularised eta, delta0'={d0:g}") for d0 in deltas]
+             + [("exact_eta", 0.0, ContactParams(regularized=False), "unregularised eta")])
+    for method, parameter, contact, label in cases:
+        r = largest_stable(mesh, tags, contact)
+        rows.append({"method": method, "parameter": parameter,
+                     **{k: r[k] for k in ("stable_dt", "halvings", "penetration")}, "chatter": chatter(r["sn"])})
+        series[label] = (r["t"], r["sn"])
     for name, contact in (("closure_exact_eta", ContactParams(regularized=False)),
                           ("closure_regularised", ContactParams())):
         for k in (0, 2, 4):
@@ -161,8 +152,6 @@ def plot(rows, series, dt_cfl, png):
     ax.loglog([r["parameter"] for r in pen], [r["penetration"] for r in pen], "s--", label="penetration [m]")
     ax.set_xlabel("penalty stiffness kappa [Pa/m]")
     ax.set_title("penalty contact", fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
     ax = axes[1]
     x = [abs(r["parameter"]) for r in rie]
     ax.loglog(x, [r["stable_dt"] / dt_cfl for r in rie], "o-", label="stable dt / dt_CFL")
@@ -170,8 +159,6 @@ def plot(rows, series, dt_cfl, png):
     ax.invert_xaxis()
     ax.set_xlabel("|delta'_0| (maximum penetration / delta~)")
     ax.set_title("Riemann contact, regularised eta", fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
     ax = axes[2]
     for name, (t, sn) in series.items():
         if name.startswith("penalty") and name != f"penalty kappa={pen[-1]['parameter']:.0e}":
@@ -191,11 +178,8 @@ def plot(rows, series, dt_cfl, png):
     ax.set_xlabel("time step / dt_CFL")
     ax.set_ylabel("largest penetration [m]")
     ax.set_title("closing a 1 µm gap at 2 m/s", fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(png)
-    plt.close(fig)
+    log_axes(axes[0], axes[1], axes[3])
+    save_figure(fig, png)
 
 
 if __name__ == "__main__":

@@ -32,12 +32,10 @@ from mpi4py import MPI
 from scipy.special import erfc
 
 from hydrofrac import ROCK, compat
-from hydrofrac.boundary import OuterState
 from hydrofrac.cg_baseline import CentralDifferenceCG, energy_norm_error, timed_steps
 from hydrofrac.forms import elastodynamics as ef
 from hydrofrac.postprocess.rundata import write_csv
-from hydrofrac.postprocess.study_common import study_parser, wall_at
-from hydrofrac.solver import Solver
+from hydrofrac.postprocess.study_common import log_axes, plane_wave_solver, save_figure, study_parser, wall_at
 
 DIRECTION = np.array([math.cos(0.3), math.sin(0.3)])
 WIDTH = 0.12
@@ -85,14 +83,8 @@ def unit_square(comm, N):
 
 
 def run_dg(comm, p, N):
-    mesh = unit_square(comm, N)
-    facets = compat.locate_boundary_facets(mesh, lambda x: np.full(x.shape[1], True))
-    tags = compat.meshtags(mesh, 1, facets, np.full(facets.size, 1))
-    solver = Solver(mesh, p, MAT, facet_tags=tags, bcs=[OuterState(1, state)])
-    solver.set_initial_state(lambda x: state(x, 0.0))
-    t_end = TRAVEL / MAT.cd
-    steps = int(math.ceil(t_end / solver.dt - 1e-9))
-    solver.dt = t_end / steps
+    solver, steps = plane_wave_solver(comm, p, N, MAT, state, TRAVEL)
+    mesh = solver.mesh
     wall = timed_steps(solver, steps)
     u = compat.function(solver.V)
     u.vector.array[:] = solver.x.array_r
@@ -130,11 +122,8 @@ def plot(rows, png):
     ax.set_xlabel("wall time of the time loop [s]")
     ax.set_ylabel("relative error (energy norm)")
     ax.set_title("Plane P wave: DG (RK4, matrix-free) vs CG (central differences)", fontsize=9)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(png)
-    plt.close(fig)
+    log_axes(ax)
+    save_figure(fig, png)
 
 
 def main(argv=None):

@@ -35,7 +35,7 @@ from hydrofrac import ROCK, compat
 from hydrofrac.cg_crack import CrackCG, boundary_facets_on, crack_opening, split_mesh
 from hydrofrac.meshes.fractures import NATURAL
 from hydrofrac.postprocess.rundata import write_csv
-from hydrofrac.postprocess.study_common import scenario, study_parser, timed_run, wall_at
+from hydrofrac.postprocess.study_common import log_axes, save_figure, scenario, study_parser, timed_run, wall_at
 
 
 BARS = {1: (20, 40, 80), 2: (20, 40, 80), 3: (20, 40, 80), 4: (20, 40, 80)}
@@ -158,15 +158,12 @@ def plot(bars, sned, png):
             ax.loglog([r["wall_s"] for r in rs], [max(r[key], 1e-16) for r in rs], style, label=m)
         ax.set_xlabel("wall time of the run [s]")
         ax.set_ylabel(label)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
+        log_axes(ax)
     axes[0].set_title("two-bar impact (case 9)", fontsize=10)
     axes[1].set_title("two-bar impact (case 9)", fontsize=10)
     axes[2].set_title("two-bar impact (case 9)", fontsize=10)
     axes[3].set_title("Sneddon crack (case 11)", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(png)
-    plt.close(fig)
+    save_figure(fig, png)
 
 
 def main(argv=None):

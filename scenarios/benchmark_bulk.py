@@ -61,8 +61,8 @@ import numpy as np
 from mpi4py import MPI
 
 from hydrofrac import ROCK, compat
-from hydrofrac.boundary import OuterState
 from hydrofrac.postprocess.rundata import write_csv
+from hydrofrac.postprocess.study_common import log_axes, plane_wave_solver, save_figure
 from hydrofrac.solver import TABLEAUX, Solver
 # -
 
@@ -206,14 +206,7 @@ def energy_norm(solver, values):
 
 
 def work_precision_case(comm, p, N):
-    mesh = unit_square(comm, N)
-    facets = compat.locate_boundary_facets(mesh, lambda x: np.full(x.shape[1], True))
-    tags = compat.meshtags(mesh, 1, facets, np.full(facets.size, 1))
-    solver = Solver(mesh, p, ROCK, facet_tags=tags, bcs=[OuterState(1, plane_wave)])
-    solver.set_initial_state(lambda x: plane_wave(x, 0.0))
-    t_end = TRAVEL / ROCK.cd
-    steps = int(math.ceil(t_end / solver.dt - 1e-9))
-    solver.dt = t_end / steps
+    solver, steps = plane_wave_solver(comm, p, N, ROCK, plane_wave, TRAVEL)
     wall = timed(comm, solver.step, steps)
     own = compat.dof_counts(solver.V)[0]
     exact = plane_wave(compat.dof_coordinates(solver.V)[:own].T, solver.t).T
@@ -238,11 +231,8 @@ def plot_work_precision(rows, png: Path, ranks: int):
     ax.set_xlabel("wall time of the time loop [s]")
     ax.set_ylabel("relative error (energy norm)")
     ax.set_title(f"Plane P wave, DG P_p + RK4, {ranks} rank(s)", fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(png)
-    plt.close(fig)
+    log_axes(ax)
+    save_figure(fig, png)
 
 
 def rate_table(rows):
