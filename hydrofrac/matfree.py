@@ -9,134 +9,192 @@ out here as in the assembled bulk flux (:mod:`hydrofrac.interface` handles them)
 
 Per cell (affine triangles): the volume terms use the reference derivative matrices
 ``S_r[i, j] = int phi_i d_r phi_j`` and the cell's inverse Jacobian; each interior facet
-evaluates both traces at its Gauss points with shared reference tables (one per ordered
-pair of reference vertices), solves the bonded Riemann problem with
-:func:`hydrofrac.riemann.bonded_pt` and adds the flux corrections to the owned sides.
+solves the bonded Riemann problem (:func:`hydrofrac.riemann.bonded_pt`, in jump form) at its p+1 nodes
+(one node list per ordered pair of reference vertices) and integrates the flux
+corrections into the owned sides with the facet mass matrix, which equals Gauss
+quadrature because the bonded solution is linear with facet-constant coefficients.
+The kernels are compiled per element size (:func:`_kernels`) so that the small loops
+unroll.
 Facets between an owned and a ghost cell are computed on both ranks, each keeping its own
 side, so no reverse scatter is needed; ghost values must be current (forward scatter).
 """
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 
 from . import compat
 from ._jit import njit
 from .element import line_quadrature, triangle_quadrature
-from .kernels import kron_inverse
-from .riemann import bonded_pt
 
 _REF_VERTICES = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
 
 
-@njit
-def _volume_and_inverse(out, R, X, dofs, ncells, S0, S1, Jinv, absdet, Minv_ref, Binv):
-    """out[cell dofs] = M_c^{-1} (R[c] + volume terms of c), for the owned cells."""
-    nb = dofs.shape[1]
-    u = np.empty((nb, 5))
-    g0 = np.empty((nb, 5))
-    g1 = np.empty((nb, 5))
-    r = np.empty((nb, 5))
-    tmp = np.empty((nb, 5))
-    res = np.empty((nb, 5))
-    for c in range(ncells):
-        for j in range(nb):
-            base = 5 * dofs[c, j]
-            for k in range(5):
-                u[j, k] = X[base + k]
-        g0[:] = 0.0
-        g1[:] = 0.0
-        for i in range(nb):
+@functools.lru_cache(maxsize=None)
+def _kernels(nb, nk):
+    """The (volume + inverse mass, interior facet flux) kernels for ``nb`` basis functions
+    per cell and ``nk`` on a facet, compiled with both as constants: LLVM then unrolls the
+    small loops (2-3x faster than with run-time sizes at p = 1-3; numba caches each pair)."""
+
+    @njit
+    def volume_and_inverse(out, R, X, dofs, ncells, S0, S1, Jinv, absdet, Minv_ref, Binv):
+        """out[cell dofs] = M_c^{-1} (R[c] + volume terms of c), for the owned cells;
+        M_c^{-1} = Minv_ref kron Binv[c], Binv[c] = diag(1/rho, 1/rho) + a 3x3 stiffness block."""
+        u = np.empty((nb, 5))
+        g0 = np.empty((nb, 5))
+        g1 = np.empty((nb, 5))
+        r = np.empty((nb, 5))
+        tmp = np.empty((nb, 5))
+        for c in range(ncells):
             for j in range(nb):
-                a0 = S0[i, j]
-                a1 = S1[i, j]
+                base = 5 * dofs[c, j]
                 for k in range(5):
-                    g0[i, k] += a0 * u[j, k]
-                    g1[i, k] += a1 * u[j, k]
-        j00, j01, j10, j11 = Jinv[c, 0, 0], Jinv[c, 0, 1], Jinv[c, 1, 0], Jinv[c, 1, 1]
-        d = absdet[c]
-        for i in range(nb):
-            # d/dx = Jinv[0,0] d/dX0 + Jinv[1,0] d/dX1 ; d/dy = Jinv[0,1] d/dX0 + Jinv[1,1] d/dX1
-            dx_vx = j00 * g0[i, 0] + j10 * g1[i, 0]
-            dy_vx = j01 * g0[i, 0] + j11 * g1[i, 0]
-            dx_vy = j00 * g0[i, 1] + j10 * g1[i, 1]
-            dy_vy = j01 * g0[i, 1] + j11 * g1[i, 1]
-            dx_sxx = j00 * g0[i, 2] + j10 * g1[i, 2]
-            dy_syy = j01 * g0[i, 3] + j11 * g1[i, 3]
-            dx_sxy = j00 * g0[i, 4] + j10 * g1[i, 4]
-            dy_sxy = j01 * g0[i, 4] + j11 * g1[i, 4]
-            r[i, 0] = R[c, i, 0] + d * (dx_sxx + dy_sxy)
-            r[i, 1] = R[c, i, 1] + d * (dx_sxy + dy_syy)
-            r[i, 2] = R[c, i, 2] + d * dx_vx
-            r[i, 3] = R[c, i, 3] + d * dy_vy
-            r[i, 4] = R[c, i, 4] + d * (dy_vx + dx_vy)
-        kron_inverse(r, Minv_ref, Binv[c], tmp, res)  # M_c^{-1} = Minv_ref kron Binv[c]
-        for a in range(nb):
-            base = 5 * dofs[c, a]
-            for k in range(5):
-                out[base + k] = res[a, k]
+                    u[j, k] = X[base + k]
+            for i in range(nb):
+                for k in range(5):
+                    s0 = 0.0
+                    s1 = 0.0
+                    for j in range(nb):
+                        s0 += S0[i, j] * u[j, k]
+                        s1 += S1[i, j] * u[j, k]
+                    g0[i, k] = s0
+                    g1[i, k] = s1
+            j00, j01, j10, j11 = Jinv[c, 0, 0], Jinv[c, 0, 1], Jinv[c, 1, 0], Jinv[c, 1, 1]
+            d = absdet[c]
+            for i in range(nb):
+                # d/dx = Jinv[0,0] d/dX0 + Jinv[1,0] d/dX1 ; d/dy = Jinv[0,1] d/dX0 + Jinv[1,1] d/dX1
+                dx_vx = j00 * g0[i, 0] + j10 * g1[i, 0]
+                dy_vx = j01 * g0[i, 0] + j11 * g1[i, 0]
+                dx_vy = j00 * g0[i, 1] + j10 * g1[i, 1]
+                dy_vy = j01 * g0[i, 1] + j11 * g1[i, 1]
+                dx_sxx = j00 * g0[i, 2] + j10 * g1[i, 2]
+                dy_syy = j01 * g0[i, 3] + j11 * g1[i, 3]
+                dx_sxy = j00 * g0[i, 4] + j10 * g1[i, 4]
+                dy_sxy = j01 * g0[i, 4] + j11 * g1[i, 4]
+                r[i, 0] = R[c, i, 0] + d * (dx_sxx + dy_sxy)
+                r[i, 1] = R[c, i, 1] + d * (dx_sxy + dy_syy)
+                r[i, 2] = R[c, i, 2] + d * dx_vx
+                r[i, 3] = R[c, i, 3] + d * dy_vy
+                r[i, 4] = R[c, i, 4] + d * (dy_vx + dx_vy)
+            for a in range(nb):
+                for k in range(5):
+                    acc = 0.0
+                    for b in range(nb):
+                        acc += Minv_ref[a, b] * r[b, k]
+                    tmp[a, k] = acc
+            B = Binv[c]
+            b00, b11 = B[0, 0], B[1, 1]
+            c22, c23, c24, c32, c33, c34 = B[2, 2], B[2, 3], B[2, 4], B[3, 2], B[3, 3], B[3, 4]
+            c42, c43, c44 = B[4, 2], B[4, 3], B[4, 4]
+            for a in range(nb):
+                base = 5 * dofs[c, a]
+                t2, t3, t4 = tmp[a, 2], tmp[a, 3], tmp[a, 4]
+                out[base] = b00 * tmp[a, 0]
+                out[base + 1] = b11 * tmp[a, 1]
+                out[base + 2] = c22 * t2 + c23 * t3 + c24 * t4
+                out[base + 3] = c32 * t2 + c33 * t3 + c34 * t4
+                out[base + 4] = c42 * t2 + c43 * t3 + c44 * t4
 
+    @njit
+    def facet_fluxes(R, X, dofs, fcells, fcodes, normal, length, fnodes, Mf, Zd, Zs, nowned):
+        """R[c] += upwind flux corrections of every listed interior facet, on its owned sides.
 
-@njit
-def _facet_fluxes(R, X, dofs, fcells, fcodes, normal, length, qw, tables, Zd, Zs, nowned):
-    """R[c] += upwind flux corrections of every listed interior facet, on its owned sides."""
-    nq = qw.shape[0]
-    nb = dofs.shape[1]
-    for f in range(fcells.shape[0]):
-        cp, cm = fcells[f, 0], fcells[f, 1]
-        Tp, Tm = tables[fcodes[f, 0]], tables[fcodes[f, 1]]
-        nx, ny = normal[f, 0], normal[f, 1]
-        Zpn, Zps, Zmn, Zms = Zd[cp], Zs[cp], Zd[cm], Zs[cm]
-        for q in range(nq):
-            # both traces in one loop, inline: calling kernels' per-row trace helper here
-            # (row views of dofs and tables per point) halved this kernel's throughput
-            up0 = up1 = up2 = up3 = up4 = 0.0
-            um0 = um1 = um2 = um3 = um4 = 0.0
-            for j in range(nb):
-                a = Tp[q, j]
-                b = 5 * dofs[cp, j]
-                up0 += a * X[b]
-                up1 += a * X[b + 1]
-                up2 += a * X[b + 2]
-                up3 += a * X[b + 3]
-                up4 += a * X[b + 4]
-                a = Tm[q, j]
-                b = 5 * dofs[cm, j]
-                um0 += a * X[b]
-                um1 += a * X[b + 1]
-                um2 += a * X[b + 2]
-                um3 += a * X[b + 3]
-                um4 += a * X[b + 4]
-            # local (normal, tangential) components, t = (-ny, nx)
-            vpn, vpt = up0 * nx + up1 * ny, -up0 * ny + up1 * nx
-            vmn, vmt = um0 * nx + um1 * ny, -um0 * ny + um1 * nx
-            sx, sy = up2 * nx + up4 * ny, up4 * nx + up3 * ny
-            spn, spt = sx * nx + sy * ny, -sx * ny + sy * nx
-            sx, sy = um2 * nx + um4 * ny, um4 * nx + um3 * ny
-            smn, smt = sx * nx + sy * ny, -sx * ny + sy * nx
-            sBn, vBn = bonded_pt(vpn, vmn, spn, smn, Zpn, Zmn)
-            sBt, vBt = bonded_pt(vpt, vmt, spt, smt, Zps, Zms)
-            w = qw[q] * length[f]
-            for side in range(2):
-                if side == 0:
-                    c, T, sgn = cp, Tp, 1.0
-                    dsn, dst, dvn, dvt = sBn - spn, sBt - spt, vBn - vpn, vBt - vpt
-                else:
-                    c, T, sgn = cm, Tm, -1.0
-                    dsn, dst, dvn, dvt = sBn - smn, sBt - smt, vBn - vmn, vBt - vmt
-                if c >= nowned:
-                    continue
+        Nodal form: the bonded Riemann solution is linear in the traces with coefficients
+        constant on the facet, so the flux correction is solved at the facet's nk nodes
+        (both sides' nodal values, no interpolation) and integrated with the facet mass
+        matrix ``length * Mf`` -- exactly the Gauss-point result (degree-2p integrand), at
+        (p+1)/nb of the trace and scatter work.  The corrections are written in terms of
+        the jumps [u] = u- - u+ (eq. 5 of :func:`hydrofrac.riemann.bonded_pt` rearranged)."""
+        Fp = np.empty((nk, 5))
+        Fm = np.empty((nk, 5))
+        for f in range(fcells.shape[0]):
+            cp, cm = fcells[f, 0], fcells[f, 1]
+            kp, km = fcodes[f, 0], fcodes[f, 1]
+            nx, ny = normal[f, 0], normal[f, 1]
+            Zpn, Zpt, Zmn, Zmt = Zd[cp], Zs[cp], Zd[cm], Zs[cm]
+            rn = 1.0 / (Zpn + Zmn)
+            rt = 1.0 / (Zpt + Zmt)
+            bn = Zpn * Zmn * rn
+            bt = Zpt * Zmt * rt
+            apn, amn, apt, amt = Zpn * rn, Zmn * rn, Zpt * rt, Zmt * rt
+            for k in range(nk):
+                b = 5 * dofs[cp, fnodes[kp, k]]
+                e = 5 * dofs[cm, fnodes[km, k]]
+                j0 = X[e] - X[b]
+                j1 = X[e + 1] - X[b + 1]
+                j2 = X[e + 2] - X[b + 2]
+                j3 = X[e + 3] - X[b + 3]
+                j4 = X[e + 4] - X[b + 4]
+                jvn, jvt = j0 * nx + j1 * ny, -j0 * ny + j1 * nx
+                tx, ty = j2 * nx + j4 * ny, j4 * nx + j3 * ny
+                jsn, jst = tx * nx + ty * ny, -tx * ny + ty * nx
+                # side +: s_B - s+ = Z+/(Z+ + Z-) [s] + Z+Z-/(Z+ + Z-) [v]; v_B - v+ = (Z- [v] + [s])/(Z+ + Z-)
+                dsn, dst = apn * jsn + bn * jvn, apt * jst + bt * jvt
+                dvn, dvt = amn * jvn + rn * jsn, amt * jvt + rt * jst
                 dsx, dsy = dsn * nx - dst * ny, dsn * ny + dst * nx
                 dvx, dvy = dvn * nx - dvt * ny, dvn * ny + dvt * nx
-                mx, my = sgn * nx, sgn * ny
-                F0, F1 = w * sgn * dsx, w * sgn * dsy
-                F2, F3, F4 = w * dvx * mx, w * dvy * my, w * (dvx * my + dvy * mx)
-                for j in range(nb):
-                    a = T[q, j]
-                    R[c, j, 0] += a * F0
-                    R[c, j, 1] += a * F1
-                    R[c, j, 2] += a * F2
-                    R[c, j, 3] += a * F3
-                    R[c, j, 4] += a * F4
+                Fp[k, 0], Fp[k, 1] = dsx, dsy
+                Fp[k, 2], Fp[k, 3], Fp[k, 4] = dvx * nx, dvy * ny, dvx * ny + dvy * nx
+                # side - (outward normal -n, traction -s*): s_B - s- = -Z-/(..) [s] + Z+Z-/(..) [v];
+                # v_B - v- = (-Z+ [v] + [s])/(..); both enter with a flipped sign, so negated here
+                dsn, dst = amn * jsn - bn * jvn, amt * jst - bt * jvt
+                dvn, dvt = apn * jvn - rn * jsn, apt * jvt - rt * jst
+                dsx, dsy = dsn * nx - dst * ny, dsn * ny + dst * nx
+                dvx, dvy = dvn * nx - dvt * ny, dvn * ny + dvt * nx
+                Fm[k, 0], Fm[k, 1] = dsx, dsy
+                Fm[k, 2], Fm[k, 3], Fm[k, 4] = dvx * nx, dvy * ny, dvx * ny + dvy * nx
+            L = length[f]
+            if cp < nowned:
+                for i in range(nk):
+                    j = fnodes[kp, i]
+                    for m in range(5):
+                        acc = 0.0
+                        for k in range(nk):
+                            acc += Mf[i, k] * Fp[k, m]
+                        R[cp, j, m] += L * acc
+            if cm < nowned:
+                for i in range(nk):
+                    j = fnodes[km, i]
+                    for m in range(5):
+                        acc = 0.0
+                        for k in range(nk):
+                            acc += Mf[i, k] * Fm[k, m]
+                        R[cm, j, m] += L * acc
+
+    return volume_and_inverse, facet_fluxes
+
+
+def facet_nodes(ref, tables, qw):
+    """Per ordered pair of reference vertices (code 3 i + j), the local nodes on that edge
+    in order from vertex i to j, (9, p+1), and the reference facet mass matrix (p+1, p+1)
+    (the same for every code).  Checks that the other basis functions vanish on the edge."""
+    X = ref.nodes
+    nk = ref.degree + 1
+    fnodes = np.zeros((9, nk), dtype=np.int64)
+    Mf = None
+    for i in range(3):
+        for j in range(3):
+            if i == j:
+                continue
+            d = _REF_VERTICES[j] - _REF_VERTICES[i]
+            rel = X - _REF_VERTICES[i]
+            s = rel @ d / (d @ d)
+            on = np.where((np.abs(rel[:, 0] * d[1] - rel[:, 1] * d[0]) < 1e-10) & (s > -1e-10) & (s < 1 + 1e-10))[0]
+            on = on[np.argsort(s[on])]
+            code = 3 * i + j
+            rest = np.setdiff1d(np.arange(X.shape[0]), on)
+            if on.size != nk or (rest.size and np.abs(tables[code][:, rest]).max() > 1e-12):
+                raise RuntimeError(f"the element is not nodal on its edges ({on.size} nodes on edge {i}-{j}, "
+                                   f"expected {nk}); the matrix-free facet kernel needs a Lagrange element")
+            fnodes[code] = on
+            psi = tables[code][:, on]
+            M = np.einsum("q,qk,ql->kl", qw, psi, psi)
+            if Mf is None:
+                Mf = M
+            elif not np.allclose(M, Mf, rtol=0.0, atol=1e-13):
+                raise RuntimeError("edge mass matrices differ between reference edges")
+    return fnodes, np.ascontiguousarray(Mf)
 
 
 @njit
@@ -227,6 +285,10 @@ class MatrixFreeOperator:
         self.absdet = np.ascontiguousarray(np.abs(g.detJ))
         self.Minv_ref = solver.Mref_inv
         self.Binv = solver.Binv_scaled
+        B = self.Binv
+        if np.any(B[:, :2, 2:]) or np.any(B[:, 2:, :2]) or np.any(B[:, 0, 1]) or np.any(B[:, 1, 0]):
+            raise RuntimeError("the matrix-free kernel expects a material block diag(1/rho, 1/rho) + stiffness "
+                               "(isotropic density); use operator='assembled' for other materials")
         self.dofs = np.ascontiguousarray(compat.cell_dofs(solver.V), dtype=np.int64)
         cs = np.sqrt(solver.mu_cell / solver.rho_cell)
         self.Zd = np.ascontiguousarray(solver.rho_cell * solver.cd_cell)
@@ -243,6 +305,8 @@ class MatrixFreeOperator:
                     pts = _REF_VERTICES[i] + s[:, None] * (_REF_VERTICES[j] - _REF_VERTICES[i])
                     tables[3 * i + j] = ref.tabulate(pts)
         self.tables = tables
+        self.fnodes, self.Mf = facet_nodes(ref, tables, self.qw)
+        self._volume, self._facets = _kernels(ref.nodes.shape[0], self.fnodes.shape[1])
         f_off, f_arr = compat.connectivity(mesh, tdim - 1, 0)
         c_off, c_arr = compat.connectivity(mesh, tdim - 1, tdim)
         facets = np.asarray(facets, dtype=np.int64)
@@ -309,10 +373,49 @@ class MatrixFreeOperator:
         before :meth:`finish`."""
         R = self.R
         R[:] = 0.0
-        _facet_fluxes(R, xloc, self.dofs, self.fcells, self.fcodes, self.normal, self.length, self.qw,
-                      self.tables, self.Zd, self.Zs, self.nowned)
+        self._facets(R, xloc, self.dofs, self.fcells, self.fcodes, self.normal, self.length, self.fnodes, self.Mf,
+                     self.Zd, self.Zs, self.nowned)
 
     def finish(self, xloc, out):
         """out (owned values) = M^{-1} (R + volume terms)."""
-        _volume_and_inverse(out, self.R, xloc, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.absdet,
-                            self.Minv_ref, self.Binv)
+        self._volume(out, self.R, xloc, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.absdet,
+                     self.Minv_ref, self.Binv)
+
+
+@njit
+def _rows_mult_add(out, y, rows, indptr, cols, vals):
+    """out[rows[i]] += sum_k vals[k] y[cols[k]] over the stored rows i (CSR)."""
+    for i in range(rows.size):
+        acc = 0.0
+        for k in range(indptr[i], indptr[i + 1]):
+            acc += vals[k] * y[cols[k]]
+        out[rows[i]] += acc
+
+
+class SparseRows:
+    """``out += A y`` for an operator whose few nonzero rows couple only owned values,
+    such as the boundary-facet operator (each boundary cell with itself): the nonzero
+    rows in CSR with local column indices, so a mat-vec touches the boundary cells only
+    instead of every row of the vector (PETSc's MatMultAdd reads and writes all of
+    ``out``).  ``A``: an assembled PETSc AIJ matrix; :meth:`from_petsc` returns None if a
+    nonzero column is not owned by this rank (then keep PETSc's mat-vec)."""
+
+    def __init__(self, rows, indptr, cols, vals):
+        self.rows, self.indptr, self.cols, self.vals = rows, indptr, cols, vals
+
+    @classmethod
+    def from_petsc(cls, A):
+        indptr, cols, vals = A.getValuesCSR()
+        r0, r1 = A.getOwnershipRange()
+        counts = np.diff(indptr)
+        rows = np.nonzero(counts)[0]
+        keep = np.repeat(counts > 0, counts)
+        cols = cols[keep].astype(np.int64)
+        if cols.size and (cols.min() < r0 or cols.max() >= r1):
+            return None
+        return cls(rows.astype(np.int64), np.concatenate([[0], np.cumsum(counts[rows])]).astype(np.int64),
+                   cols - r0, np.ascontiguousarray(vals[keep]))
+
+    def mult_add(self, y, out):
+        """out += A y on this rank's owned values (arrays)."""
+        _rows_mult_add(out, y, self.rows, self.indptr, self.cols, self.vals)

@@ -26,6 +26,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from . import compat
+from ._jit import njit
 from .boundary import RADIATING, Absorbing, BoundaryCondition, OuterState, Traction, Velocity
 from .element import CellGeometry, reference_element
 from .forms import elastodynamics as ef
@@ -117,6 +118,13 @@ class EnergyBudget:
         ref = max(abs(self.initial) + abs(self.work_in) + abs(self.radiated), 1e-300)
         d["balance_error_relative"] = self.balance_error / ref
         return d
+
+
+@njit
+def _axpy_into(y, x, c, k):
+    """y = x + c k (one pass over three vectors; PETSc needs a copy and an axpy)."""
+    for i in range(y.size):
+        y[i] = x[i] + c * k[i]
 
 
 def _to_baij(A, bs):
@@ -350,11 +358,15 @@ class Solver:
             self.A = _to_baij(self.Minv.matMult(K), ef.NCOMP)
             K.destroy()
         else:
-            from .matfree import MatrixFreeOperator
+            from .matfree import MatrixFreeOperator, SparseRows
             self.matfree = MatrixFreeOperator(self, self._bulk_facets())
             if a_bdry is not None:  # boundary cells only: a sparse, mostly empty operator
                 K = compat.assemble_matrix(compat.form(a_bdry))
-                self.B = _to_baij(self.Minv.matMult(K), ef.NCOMP)
+                MK = self.Minv.matMult(K)
+                self.B = SparseRows.from_petsc(MK)
+                self.B = self.B if self.B is not None else _to_baij(MK, ef.NCOMP)
+                if isinstance(self.B, SparseRows):
+                    MK.destroy()
                 K.destroy()
 
         # loads: constant part, history-scaled parts, outer states
@@ -585,8 +597,10 @@ class Solver:
                 rates = [ext.stage_cells(X, t, mf.R) for ext in self.extensions]
                 t0 = time.perf_counter()
                 mf.finish(X, out.array)
-            if self.B is not None:
+            if isinstance(self.B, PETSc.Mat):
                 self.B.multAdd(y, out, out)
+            elif self.B is not None:
+                self.B.mult_add(y.array_r, out.array)
         else:
             self.A.mult(y, out)
         if self.relaxation:
@@ -620,10 +634,13 @@ class Solver:
         zk = [[] for _ in self.extensions]
         for i in range(len(b)):
             t0 = time.perf_counter()
-            x.copy(y)
-            coeffs = [dt * aij for aij in a[i]]
-            if coeffs:
-                y.maxpy(coeffs, ks[: len(coeffs)])
+            terms = [(dt * aij, ks[j]) for j, aij in enumerate(a[i]) if aij]
+            if len(terms) == 1:  # y = x + c k in one pass (RK4's stages)
+                _axpy_into(y.array, x.array_r, terms[0][0], terms[0][1].array_r)
+            else:
+                x.copy(y)
+                if terms:
+                    y.maxpy([c for c, _ in terms], [k for _, k in terms])
             for e, ext in enumerate(self.extensions):
                 zi = zs[e].copy()
                 for j, aij in enumerate(a[i]):
