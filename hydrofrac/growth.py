@@ -68,12 +68,18 @@ def stress_at(solver, points):
     found = np.zeros(X.shape[0])
     U = solver.x.array_r.reshape(-1, 5)
     dofs = compat.cell_dofs(solver.V)
+    # candidate cells: those whose bounding box meets the points' bounding box
+    vmin, vmax = g.vertices[:nloc].min(axis=1), g.vertices[:nloc].max(axis=1)
+    pad = 1e-9 * max(1.0, float(np.abs(X).max(initial=0.0)))
+    near = np.flatnonzero(np.all(vmax >= X.min(axis=0, initial=np.inf) - pad, axis=1)
+                          & np.all(vmin <= X.max(axis=0, initial=-np.inf) + pad, axis=1))
+    Jn, x0n = g.Jinv[near], g.x0[near]
     for i, x in enumerate(X):
-        ref = np.einsum("cij,cj->ci", g.Jinv[:nloc], x - g.x0[:nloc])
+        ref = np.einsum("cij,cj->ci", Jn, x - x0n)
         lam = np.c_[1 - ref.sum(axis=1), ref]
-        inside = np.flatnonzero(lam.min(axis=1) >= -1e-10)
-        for c in inside:
-            phi = solver.ref.tabulate(ref[c:c + 1])[0]
+        for k in np.flatnonzero(lam.min(axis=1) >= -1e-10):
+            c = near[k]
+            phi = solver.ref.tabulate(ref[k:k + 1])[0]
             out[i] += (phi @ U[dofs[c]])[2:5]
             found[i] += 1.0
     comm = solver.comm

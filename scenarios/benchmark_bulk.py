@@ -33,19 +33,21 @@
 #   each, *including* the structural zeros DOLFINx's sparsity pattern keeps:
 #   ~59, 118, 195 per row for p = 1, 2, 3), one 4-byte column index per 5×5 block,
 #   the row pointers, plus reading ``y`` and writing ``k`` (16 bytes);
-# * the RK vector updates as coded: the copy ``y = x`` (16 bytes), ``y += Σ a_ij k_j``
-#   (``VecMAXPY`` over i earlier stages: (i + 2)·8 bytes), and the final
-#   ``x += Σ b_j k_j`` shared by the s stages ((s + 2)·8/s bytes).  For RK4 these
-#   average 68 bytes per DOF·stage.
+# * the RK vector updates as coded: a stage vector with one earlier stage in it,
+#   ``y = x + c k_j`` (all of RK4's but the first), in one pass (24 bytes); otherwise the
+#   copy ``y = x`` (16 bytes) and ``y += Σ a_ij k_j`` over the nonzero a_ij
+#   (``VecMAXPY``: (terms + 2)·8 bytes); and the final ``x += Σ b_j k_j`` shared by
+#   the s stages ((s + 2)·8/s bytes).  For RK4 these average 34 bytes per DOF·stage.
 #
-# So bytes/(DOF·stage) = (8·nnz + 4·nblocks + 4·(block rows + 1))/n + 16 + 68 for
-# RK4; for p = 1 about 560 bytes, dominated by the matrix.
+# So bytes/(DOF·stage) = (8·nnz + 4·nblocks + 4·(block rows + 1))/n + 16 + 34 for
+# RK4; for p = 1 about 540 bytes, dominated by the matrix.
 #
 # The matrix-free operator (:mod:`hydrofrac.matfree`) instead reads ``y`` once and
 # writes ``k`` once (16 bytes), round-trips the cell residual array (zero, accumulate,
 # read: 32 bytes) and reads its per-cell and per-facet data once (dofmap, inverse
-# Jacobian, |det J|, the 5×5 material block, impedances; the facets' cells, table codes,
-# normal and length), counted from the arrays' sizes: ~24 bytes per DOF at p = 1.
+# Jacobian, |det J|, the 5×5 material block, impedances; the facets' cells, node-list
+# codes, normal and length), counted from the arrays' sizes: ~24 bytes per DOF at p = 1.
+# The boundary facets' operator touches the boundary cells' rows only (not counted).
 # Re-reads of ``y`` by the up to three facets of a cell are assumed to hit the cache.
 # The bound is ``bandwidth / bytes`` DOF·stages/s.
 
@@ -119,7 +121,11 @@ def bytes_per_dof_stage(solver: Solver):
         operator = (8 * nnz + 4 * nnz / bs ** 2 + 4 * (n / bs + solver.comm.size)) / n + 16
     a, b, _ = TABLEAUX[solver.scheme]
     s = len(b)
-    rk = 16 + sum((len(row) + 2) * 8 for row in a if row) / s + (s + 2) * 8 / s
+    per_stage = []
+    for row in a:
+        terms = sum(1 for aij in row if aij)
+        per_stage.append(24 if terms == 1 else 16 + ((terms + 2) * 8 if terms else 0))
+    rk = sum(per_stage) / s + (s + 2) * 8 / s
     return operator, rk
 
 
