@@ -33,9 +33,10 @@ _REF_VERTICES = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
 
 @functools.lru_cache(maxsize=None)
 def _kernels(nb, nk):
-    """The (volume + inverse mass, interior facet flux) kernels for ``nb`` basis functions
-    per cell and ``nk`` on a facet, compiled with both as constants: LLVM then unrolls the
-    small loops (2-3x faster than with run-time sizes at p = 1-3; numba caches each pair)."""
+    """The (volume + inverse mass, interior facet flux, facet dissipation, cell energies)
+    kernels for ``nb`` basis functions per cell and ``nk`` on a facet, compiled with both as
+    constants: LLVM then unrolls the small loops (2-3x faster than with run-time sizes at
+    p = 1-3; numba caches each set)."""
 
     @njit
     def volume_and_inverse(out, R, X, dofs, ncells, S0, S1, Jinv, absdet, Minv_ref, Binv):
@@ -162,7 +163,72 @@ def _kernels(nb, nk):
                             acc += Mf[i, k] * Fm[k, m]
                         R[cm, j, m] += L * acc
 
-    return volume_and_inverse, facet_fluxes
+    @njit
+    def facet_dissipation(X, dofs, fcells, fcodes, fown, normal, length, fnodes, Mf, Zd, Zs):
+        """Rate of energy dissipated by the upwind flux on the owned listed facets:
+        int sum_i Z_i+ Z_i- / (Z_i+ + Z_i-) [[v_i]]^2 + [[s_i]]^2 / (Z_i+ + Z_i-), i = n, t
+        (the quadratic form of :func:`hydrofrac.forms.elastodynamics.interior_dissipation`),
+        from the jumps at the facet nodes and the facet mass matrix (exact, as the flux)."""
+        J = np.empty((nk, 4))
+        total = 0.0
+        for f in range(fcells.shape[0]):
+            if not fown[f]:
+                continue
+            cp, cm = fcells[f, 0], fcells[f, 1]
+            kp, km = fcodes[f, 0], fcodes[f, 1]
+            nx, ny = normal[f, 0], normal[f, 1]
+            Zpn, Zpt, Zmn, Zmt = Zd[cp], Zs[cp], Zd[cm], Zs[cm]
+            for k in range(nk):
+                b = 5 * dofs[cp, fnodes[kp, k]]
+                e = 5 * dofs[cm, fnodes[km, k]]
+                d0 = X[b] - X[e]
+                d1 = X[b + 1] - X[e + 1]
+                d2 = X[b + 2] - X[e + 2]
+                d3 = X[b + 3] - X[e + 3]
+                d4 = X[b + 4] - X[e + 4]
+                sx, sy = d2 * nx + d4 * ny, d4 * nx + d3 * ny
+                J[k, 0], J[k, 1] = d0 * nx + d1 * ny, -d0 * ny + d1 * nx
+                J[k, 2], J[k, 3] = sx * nx + sy * ny, -sx * ny + sy * nx
+            an, at = Zpn * Zmn / (Zpn + Zmn), Zpt * Zmt / (Zpt + Zmt)
+            cn, ct = 1.0 / (Zpn + Zmn), 1.0 / (Zpt + Zmt)
+            acc = 0.0
+            for k in range(nk):
+                for m in range(nk):
+                    acc += Mf[k, m] * (an * J[k, 0] * J[m, 0] + at * J[k, 1] * J[m, 1]
+                                       + cn * J[k, 2] * J[m, 2] + ct * J[k, 3] * J[m, 3])
+            total += acc * length[f]
+        return total
+
+    @njit
+    def cell_energies(X, X0, dofs, ncells, Mref, absdet, Bmat):
+        """(kinetic, strain) energy of X - X0 on the owned cells: 1/2 u^T M_c u with
+        M_c = |det J| Mref kron B_c (B_c: rho for v, the compliance for sigma)."""
+        u = np.empty((nb, 5))
+        kin = 0.0
+        strain = 0.0
+        for c in range(ncells):
+            for j in range(nb):
+                base = 5 * dofs[c, j]
+                for k in range(5):
+                    u[j, k] = X[base + k] - X0[base + k]
+            B = Bmat[c]
+            ek = 0.0
+            es = 0.0
+            for a in range(nb):
+                # w = B u[a] (sigma block), then u[b] . (Mref[a, b] w) summed over b
+                w2 = B[2, 2] * u[a, 2] + B[2, 3] * u[a, 3] + B[2, 4] * u[a, 4]
+                w3 = B[3, 2] * u[a, 2] + B[3, 3] * u[a, 3] + B[3, 4] * u[a, 4]
+                w4 = B[4, 2] * u[a, 2] + B[4, 3] * u[a, 3] + B[4, 4] * u[a, 4]
+                wk0, wk1 = B[0, 0] * u[a, 0], B[1, 1] * u[a, 1]
+                for b in range(nb):
+                    m = Mref[a, b]
+                    ek += m * (wk0 * u[b, 0] + wk1 * u[b, 1])
+                    es += m * (w2 * u[b, 2] + w3 * u[b, 3] + w4 * u[b, 4])
+            kin += absdet[c] * ek
+            strain += absdet[c] * es
+        return 0.5 * kin, 0.5 * strain
+
+    return volume_and_inverse, facet_fluxes, facet_dissipation, cell_energies
 
 
 def facet_nodes(ref, tables, qw):
@@ -195,73 +261,6 @@ def facet_nodes(ref, tables, qw):
             elif not np.allclose(M, Mf, rtol=0.0, atol=1e-13):
                 raise RuntimeError("edge mass matrices differ between reference edges")
     return fnodes, np.ascontiguousarray(Mf)
-
-
-@njit
-def _facet_dissipation(X, dofs, fcells, fcodes, fown, normal, length, qw, tables, Zd, Zs):
-    """Rate of energy dissipated by the upwind flux on the owned listed facets:
-    int sum_i Z_i+ Z_i- / (Z_i+ + Z_i-) [[v_i]]^2 + [[s_i]]^2 / (Z_i+ + Z_i-), i = n, t
-    (the quadratic form of :func:`hydrofrac.forms.elastodynamics.interior_dissipation`)."""
-    nq = qw.shape[0]
-    nb = dofs.shape[1]
-    total = 0.0
-    for f in range(fcells.shape[0]):
-        if not fown[f]:
-            continue
-        cp, cm = fcells[f, 0], fcells[f, 1]
-        Tp, Tm = tables[fcodes[f, 0]], tables[fcodes[f, 1]]
-        nx, ny = normal[f, 0], normal[f, 1]
-        Zpn, Zps, Zmn, Zms = Zd[cp], Zs[cp], Zd[cm], Zs[cm]
-        acc = 0.0
-        for q in range(nq):
-            d0 = d1 = d2 = d3 = d4 = 0.0  # jumps of the five fields, + minus -
-            for j in range(nb):
-                a = Tp[q, j]
-                b = Tm[q, j]
-                ip = 5 * dofs[cp, j]
-                im = 5 * dofs[cm, j]
-                d0 += a * X[ip] - b * X[im]
-                d1 += a * X[ip + 1] - b * X[im + 1]
-                d2 += a * X[ip + 2] - b * X[im + 2]
-                d3 += a * X[ip + 3] - b * X[im + 3]
-                d4 += a * X[ip + 4] - b * X[im + 4]
-            dvn, dvt = d0 * nx + d1 * ny, -d0 * ny + d1 * nx
-            sx, sy = d2 * nx + d4 * ny, d4 * nx + d3 * ny
-            dsn, dst = sx * nx + sy * ny, -sx * ny + sy * nx
-            acc += qw[q] * (Zpn * Zmn / (Zpn + Zmn) * dvn * dvn + dsn * dsn / (Zpn + Zmn)
-                            + Zps * Zms / (Zps + Zms) * dvt * dvt + dst * dst / (Zps + Zms))
-        total += acc * length[f]
-    return total
-
-
-@njit
-def _cell_energies(X, X0, dofs, ncells, Mref, absdet, Bmat):
-    """(kinetic, strain) energy of X - X0 on the owned cells: 1/2 u^T M_c u with
-    M_c = |det J| Mref kron B_c (B_c: rho for v, the compliance for sigma)."""
-    nb = dofs.shape[1]
-    u = np.empty((nb, 5))
-    kin = 0.0
-    strain = 0.0
-    for c in range(ncells):
-        for j in range(nb):
-            base = 5 * dofs[c, j]
-            for k in range(5):
-                u[j, k] = X[base + k] - X0[base + k]
-        B = Bmat[c]
-        ek = 0.0
-        es = 0.0
-        for a in range(nb):
-            for b in range(nb):
-                m = Mref[a, b]
-                ek += m * (B[0, 0] * u[a, 0] * u[b, 0] + B[1, 1] * u[a, 1] * u[b, 1])
-                s = 0.0
-                for k in range(2, 5):
-                    for l in range(2, 5):
-                        s += B[k, l] * u[a, k] * u[b, l]
-                es += m * s
-        kin += absdet[c] * ek
-        strain += absdet[c] * es
-    return 0.5 * kin, 0.5 * strain
 
 
 class MatrixFreeOperator:
@@ -306,7 +305,8 @@ class MatrixFreeOperator:
                     tables[3 * i + j] = ref.tabulate(pts)
         self.tables = tables
         self.fnodes, self.Mf = facet_nodes(ref, tables, self.qw)
-        self._volume, self._facets = _kernels(ref.nodes.shape[0], self.fnodes.shape[1])
+        self._volume, self._facets, self._dissipation, self._energies = _kernels(ref.nodes.shape[0],
+                                                                                 self.fnodes.shape[1])
         f_off, f_arr = compat.connectivity(mesh, tdim - 1, 0)
         c_off, c_arr = compat.connectivity(mesh, tdim - 1, tdim)
         facets = np.asarray(facets, dtype=np.int64)
@@ -355,12 +355,12 @@ class MatrixFreeOperator:
 
     def dissipation_rate(self, xloc):
         """This rank's share of the interior upwind dissipation rate [W/m] (ghosts current)."""
-        return _facet_dissipation(xloc, self.dofs, self.fcells, self.fcodes, self.fown, self.normal, self.length,
-                                  self.qw, self.tables, self.Zd, self.Zs)
+        return self._dissipation(xloc, self.dofs, self.fcells, self.fcodes, self.fown, self.normal, self.length,
+                                 self.fnodes, self.Mf, self.Zd, self.Zs)
 
     def energies(self, xloc, x0loc):
         """This rank's (kinetic, strain) energy of x - x0 [J/m]."""
-        return _cell_energies(xloc, x0loc, self.dofs, self.nowned, self.Mref, self.absdet, self.Bmat)
+        return self._energies(xloc, x0loc, self.dofs, self.nowned, self.Mref, self.absdet, self.Bmat)
 
     def apply(self, xloc, out):
         """out (owned values) = M^{-1}(K_vol + K_int) x; ``xloc``: local form incl. ghosts."""
