@@ -40,7 +40,7 @@ def _kernels(nb, nk):
 
     @njit
     def volume_and_inverse(out, R, X, dofs, ncells, S0, S1, Jinv, absdet, Minv_ref, Binv):
-        """out[cell dofs] = M_c^{-1} (R[c] + volume terms of c), for the owned cells;
+        """out[cell dofs] = M_c^{-1} (R[c] + volume terms of c), for the owned cells (R[c] is zeroed);
         M_c^{-1} = Minv_ref kron Binv[c], Binv[c] = diag(1/rho, 1/rho) + a 3x3 stiffness block."""
         u = np.empty((nb, 5))
         g0 = np.empty((nb, 5))
@@ -78,6 +78,8 @@ def _kernels(nb, nk):
                 r[i, 2] = R[c, i, 2] + d * dx_vx
                 r[i, 3] = R[c, i, 3] + d * dy_vy
                 r[i, 4] = R[c, i, 4] + d * (dy_vx + dx_vy)
+                for k in range(5):
+                    R[c, i, k] = 0.0  # cleared for the next stage (saves a separate pass)
             for a in range(nb):
                 for k in range(5):
                     acc = 0.0
@@ -350,6 +352,7 @@ class MatrixFreeOperator:
         self.normal = np.ascontiguousarray(n)
         self.length = np.ascontiguousarray(length)
         self.R = np.zeros((self.nowned, self.dofs.shape[1], 5))
+        self._R_clear = True
         self.Mref = np.ascontiguousarray(ref.mass())
         self.Bmat = solver.material_blocks
 
@@ -372,7 +375,9 @@ class MatrixFreeOperator:
         (crack interfaces) may be added to ``R[c, j, :]`` (owned cell c, local basis j)
         before :meth:`finish`."""
         R = self.R
-        R[:] = 0.0
+        if not self._R_clear:  # finish() clears R as it reads it; after an interrupted stage, here
+            R[:] = 0.0
+        self._R_clear = False
         self._facets(R, xloc, self.dofs, self.fcells, self.fcodes, self.normal, self.length, self.fnodes, self.Mf,
                      self.Zd, self.Zs, self.nowned)
 
@@ -380,6 +385,7 @@ class MatrixFreeOperator:
         """out (owned values) = M^{-1} (R + volume terms)."""
         self._volume(out, self.R, xloc, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.absdet,
                      self.Minv_ref, self.Binv)
+        self._R_clear = True
 
 
 @njit

@@ -635,12 +635,14 @@ class Solver:
         for i in range(len(b)):
             t0 = time.perf_counter()
             terms = [(dt * aij, ks[j]) for j, aij in enumerate(a[i]) if aij]
-            if len(terms) == 1:  # y = x + c k in one pass (RK4's stages)
+            yi = y
+            if not terms:  # the first stage reads x itself (the operator only reads its input)
+                yi = x
+            elif len(terms) == 1:  # y = x + c k in one pass (RK4's other stages)
                 _axpy_into(y.array, x.array_r, terms[0][0], terms[0][1].array_r)
             else:
                 x.copy(y)
-                if terms:
-                    y.maxpy([c for c, _ in terms], [k for _, k in terms])
+                y.maxpy([c for c, _ in terms], [k for _, k in terms])
             for e, ext in enumerate(self.extensions):
                 zi = zs[e].copy()
                 for j, aij in enumerate(a[i]):
@@ -648,9 +650,9 @@ class Solver:
                         zi += dt * aij * zk[e][j]
                 ext.stage_state = ext.constrain(zi)
             if self.extensions and self.matfree is None:  # (the matrix-free rhs updates them itself)
-                y.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+                yi.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
             self.timers.add("rk update", time.perf_counter() - t0)
-            rates = self.rhs(y, t + c[i] * dt, ks[i])
+            rates = self.rhs(yi, t + c[i] * dt, ks[i])
             for e in range(len(self.extensions)):
                 zk[e].append(rates[e])
         t0 = time.perf_counter()
