@@ -9,7 +9,7 @@ out here as in the assembled bulk flux (:mod:`hydrofrac.interface` handles them)
 
 Per cell (affine triangles): the volume terms use the reference derivative matrices
 ``S_r[i, j] = int phi_i d_r phi_j`` and the cell's inverse Jacobian; each interior facet
-solves the bonded Riemann problem (:func:`hydrofrac.riemann.bonded_pt`, in jump form) at its p+1 nodes
+solves the bonded Riemann problem (:func:`hydrofrac.riemann.bonded_jump_pt`) at its p+1 nodes
 (one node list per ordered pair of reference vertices) and integrates the flux
 corrections into the owned sides with the facet mass matrix, which equals Gauss
 quadrature because the bonded solution is linear with facet-constant coefficients.
@@ -27,6 +27,7 @@ import numpy as np
 from . import compat
 from ._jit import njit
 from .element import line_quadrature, triangle_quadrature
+from .riemann import bonded_jump_pt
 
 _REF_VERTICES = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
 
@@ -107,8 +108,8 @@ def _kernels(nb, nk):
         constant on the facet, so the flux correction is solved at the facet's nk nodes
         (both sides' nodal values, no interpolation) and integrated with the facet mass
         matrix ``length * Mf`` -- exactly the Gauss-point result (degree-2p integrand), at
-        (p+1)/nb of the trace and scatter work.  The corrections are written in terms of
-        the jumps [u] = u- - u+ (eq. 5 of :func:`hydrofrac.riemann.bonded_pt` rearranged)."""
+        (p+1)/nb of the trace and scatter work.  The corrections depend on the jumps
+        [u] = u- - u+ only (:func:`hydrofrac.riemann.bonded_jump_pt`)."""
         Fp = np.empty((nk, 5))
         Fm = np.empty((nk, 5))
         for f in range(fcells.shape[0]):
@@ -116,11 +117,6 @@ def _kernels(nb, nk):
             kp, km = fcodes[f, 0], fcodes[f, 1]
             nx, ny = normal[f, 0], normal[f, 1]
             Zpn, Zpt, Zmn, Zmt = Zd[cp], Zs[cp], Zd[cm], Zs[cm]
-            rn = 1.0 / (Zpn + Zmn)
-            rt = 1.0 / (Zpt + Zmt)
-            bn = Zpn * Zmn * rn
-            bt = Zpt * Zmt * rt
-            apn, amn, apt, amt = Zpn * rn, Zmn * rn, Zpt * rt, Zmt * rt
             for k in range(nk):
                 b = 5 * dofs[cp, fnodes[kp, k]]
                 e = 5 * dofs[cm, fnodes[km, k]]
@@ -132,19 +128,16 @@ def _kernels(nb, nk):
                 jvn, jvt = j0 * nx + j1 * ny, -j0 * ny + j1 * nx
                 tx, ty = j2 * nx + j4 * ny, j4 * nx + j3 * ny
                 jsn, jst = tx * nx + ty * ny, -tx * ny + ty * nx
-                # side +: s_B - s+ = Z+/(Z+ + Z-) [s] + Z+Z-/(Z+ + Z-) [v]; v_B - v+ = (Z- [v] + [s])/(Z+ + Z-)
-                dsn, dst = apn * jsn + bn * jvn, apt * jst + bt * jvt
-                dvn, dvt = amn * jvn + rn * jsn, amt * jvt + rt * jst
-                dsx, dsy = dsn * nx - dst * ny, dsn * ny + dst * nx
-                dvx, dvy = dvn * nx - dvt * ny, dvn * ny + dvt * nx
+                dspn, dvpn, dsmn, dvmn = bonded_jump_pt(jvn, jsn, Zpn, Zmn)
+                dspt, dvpt, dsmt, dvmt = bonded_jump_pt(jvt, jst, Zpt, Zmt)
+                # side +: outward normal n
+                dsx, dsy = dspn * nx - dspt * ny, dspn * ny + dspt * nx
+                dvx, dvy = dvpn * nx - dvpt * ny, dvpn * ny + dvpt * nx
                 Fp[k, 0], Fp[k, 1] = dsx, dsy
                 Fp[k, 2], Fp[k, 3], Fp[k, 4] = dvx * nx, dvy * ny, dvx * ny + dvy * nx
-                # side - (outward normal -n, traction -s*): s_B - s- = -Z-/(..) [s] + Z+Z-/(..) [v];
-                # v_B - v- = (-Z+ [v] + [s])/(..); both enter with a flipped sign, so negated here
-                dsn, dst = amn * jsn - bn * jvn, amt * jst - bt * jvt
-                dvn, dvt = apn * jvn - rn * jsn, apt * jvt - rt * jst
-                dsx, dsy = dsn * nx - dst * ny, dsn * ny + dst * nx
-                dvx, dvy = dvn * nx - dvt * ny, dvn * ny + dvt * nx
+                # side -: outward normal -n and traction -s*, so both terms change sign
+                dsx, dsy = -(dsmn * nx - dsmt * ny), -(dsmn * ny + dsmt * nx)
+                dvx, dvy = -(dvmn * nx - dvmt * ny), -(dvmn * ny + dvmt * nx)
                 Fm[k, 0], Fm[k, 1] = dsx, dsy
                 Fm[k, 2], Fm[k, 3], Fm[k, 4] = dvx * nx, dvy * ny, dvx * ny + dvy * nx
             L = length[f]

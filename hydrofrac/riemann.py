@@ -44,6 +44,17 @@ def bonded_pt(vp, vm, sp, sm, Zp, Zm):
 
 
 @njit
+def bonded_jump_pt(jv, js, Zp, Zm):
+    """:func:`bonded_pt` as corrections to each side's trace, from the jumps
+    [v] = v- - v+ and [s] = s- - s+ of one component: returns
+    (s_B - s+, v_B - v+, s_B - s-, v_B - v-).  The bulk facet flux only needs these, and
+    they depend on the jumps alone (the matrix-free kernel solves them at facet nodes)."""
+    r = 1.0 / (Zp + Zm)
+    b = Zp * Zm * r
+    return Zp * r * js + b * jv, r * (Zm * jv + js), -Zm * r * js + b * jv, r * (js - Zp * jv)
+
+
+@njit
 def separation_pt(vp, vm, sp, sm, Zp, Zm, S):
     """Prescribed traction S on one component (eq. 4): returns (S, v+, v-), each side's
     velocity from its own characteristic."""

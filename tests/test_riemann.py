@@ -388,3 +388,19 @@ def test_bonded_interface_debonds_past_strength():
         assert np.abs(T["s_star"]).max() <= 1e-6 * dmg.s_bar
         assert np.all(iface.state[1] > 0)
         assert np.all(T["eta"] == 0.0)
+
+
+def test_bonded_jump_form_equals_bonded_solution():
+    """The jump form used by the matrix-free facet kernel gives each side's correction
+    s_B - s±, v_B - v± of the bonded solution (eq. 5) to round-off, for unequal impedances."""
+    from hydrofrac.riemann import bonded_jump_pt, bonded_pt
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        vp, vm = rng.normal(size=2)
+        sp, sm = 1e6 * rng.normal(size=2)
+        Zp, Zm = 1e6 * (1.0 + 9.0 * rng.random(2))
+        sB, vB = bonded_pt(vp, vm, sp, sm, Zp, Zm)
+        got = bonded_jump_pt(vm - vp, sm - sp, Zp, Zm)
+        want = (sB - sp, vB - vp, sB - sm, vB - vm)
+        assert np.allclose(got[0::2], want[0::2], rtol=1e-12, atol=1e-6), (got, want)  # stresses ~1e6 Pa
+        assert np.allclose(got[1::2], want[1::2], rtol=1e-12, atol=1e-12), (got, want)  # velocities ~1 m/s
