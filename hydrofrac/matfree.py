@@ -46,16 +46,18 @@ def _node_jumps(X, b, e, nx, ny):
 
 
 @functools.lru_cache(maxsize=None)
-def _kernels(nb, nk):
+def _kernels(nb, nk, contig=False):
     """The (volume + inverse mass, interior facet flux, facet dissipation, cell energies)
     kernels for ``nb`` basis functions per cell and ``nk`` on a facet, compiled with both as
     constants: LLVM then unrolls the small loops (2-3x faster than with run-time sizes at
     p = 1-3; numba caches each set)."""
 
     @njit
-    def volume_and_inverse(out, R, X, dofs, ncells, S0, S1, Jinv, absdet, Minv_ref, Binv):
+    def volume_and_inverse(out, R, X, dofs, ncells, S0, S1, Jinv, invdet, Minv_ref, mat, Btab):
         """out[cell dofs] = M_c^{-1} (R[c] + volume terms of c), for the owned cells (R[c] is zeroed);
-        M_c^{-1} = Minv_ref kron Binv[c], Binv[c] = diag(1/rho, 1/rho) + a 3x3 stiffness block."""
+        M_c^{-1} = Minv_ref kron B^{-1} / |det J_c|, with B^{-1} = diag(1/rho, 1/rho) + a 3x3
+        stiffness block, stored once per material: ``Btab[mat[c]]`` = (1/rho, 1/rho, the 3x3 block
+        row by row)."""
         u = np.empty((nb, 5))
         g0 = np.empty((nb, 5))
         g1 = np.empty((nb, 5))
@@ -63,7 +65,7 @@ def _kernels(nb, nk):
         tmp = np.empty((nb, 5))
         for c in range(ncells):
             for j in range(nb):
-                base = 5 * dofs[c, j]
+                base = 5 * (nb * c + j) if contig else 5 * dofs[c, j]
                 for k in range(5):
                     u[j, k] = X[base + k]
             for i in range(nb):
@@ -76,7 +78,7 @@ def _kernels(nb, nk):
                     g0[i, k] = s0
                     g1[i, k] = s1
             j00, j01, j10, j11 = Jinv[c, 0, 0], Jinv[c, 0, 1], Jinv[c, 1, 0], Jinv[c, 1, 1]
-            d = absdet[c]
+            e = invdet[c]  # (R + |det J| vol) / |det J|
             for i in range(nb):
                 # d/dx = Jinv[0,0] d/dX0 + Jinv[1,0] d/dX1 ; d/dy = Jinv[0,1] d/dX0 + Jinv[1,1] d/dX1
                 dx_vx = j00 * g0[i, 0] + j10 * g1[i, 0]
@@ -87,11 +89,11 @@ def _kernels(nb, nk):
                 dy_syy = j01 * g0[i, 3] + j11 * g1[i, 3]
                 dx_sxy = j00 * g0[i, 4] + j10 * g1[i, 4]
                 dy_sxy = j01 * g0[i, 4] + j11 * g1[i, 4]
-                r[i, 0] = R[c, i, 0] + d * (dx_sxx + dy_sxy)
-                r[i, 1] = R[c, i, 1] + d * (dx_sxy + dy_syy)
-                r[i, 2] = R[c, i, 2] + d * dx_vx
-                r[i, 3] = R[c, i, 3] + d * dy_vy
-                r[i, 4] = R[c, i, 4] + d * (dy_vx + dx_vy)
+                r[i, 0] = e * R[c, i, 0] + (dx_sxx + dy_sxy)
+                r[i, 1] = e * R[c, i, 1] + (dx_sxy + dy_syy)
+                r[i, 2] = e * R[c, i, 2] + dx_vx
+                r[i, 3] = e * R[c, i, 3] + dy_vy
+                r[i, 4] = e * R[c, i, 4] + (dy_vx + dx_vy)
                 for k in range(5):
                     R[c, i, k] = 0.0  # cleared for the next stage (saves a separate pass)
             for a in range(nb):
@@ -100,12 +102,12 @@ def _kernels(nb, nk):
                     for b in range(nb):
                         acc += Minv_ref[a, b] * r[b, k]
                     tmp[a, k] = acc
-            B = Binv[c]
-            b00, b11 = B[0, 0], B[1, 1]
-            c22, c23, c24, c32, c33, c34 = B[2, 2], B[2, 3], B[2, 4], B[3, 2], B[3, 3], B[3, 4]
-            c42, c43, c44 = B[4, 2], B[4, 3], B[4, 4]
+            B = Btab[mat[c]]
+            b00, b11 = B[0], B[1]
+            c22, c23, c24, c32, c33, c34 = B[2], B[3], B[4], B[5], B[6], B[7]
+            c42, c43, c44 = B[8], B[9], B[10]
             for a in range(nb):
-                base = 5 * dofs[c, a]
+                base = 5 * (nb * c + a) if contig else 5 * dofs[c, a]
                 t2, t3, t4 = tmp[a, 2], tmp[a, 3], tmp[a, 4]
                 out[base] = b00 * tmp[a, 0]
                 out[base + 1] = b11 * tmp[a, 1]
@@ -131,7 +133,11 @@ def _kernels(nb, nk):
             nx, ny = normal[f, 0], normal[f, 1]
             Zpn, Zpt, Zmn, Zmt = Zd[cp], Zs[cp], Zd[cm], Zs[cm]
             for k in range(nk):
-                jvn, jvt, jsn, jst = _node_jumps(X, 5 * dofs[cp, fnodes[kp, k]], 5 * dofs[cm, fnodes[km, k]], nx, ny)
+                if contig:
+                    ip, im = 5 * (nb * cp + fnodes[kp, k]), 5 * (nb * cm + fnodes[km, k])
+                else:
+                    ip, im = 5 * dofs[cp, fnodes[kp, k]], 5 * dofs[cm, fnodes[km, k]]
+                jvn, jvt, jsn, jst = _node_jumps(X, ip, im, nx, ny)
                 dspn, dvpn, dsmn, dvmn = bonded_jump_pt(jvn, jsn, Zpn, Zmn)
                 dspt, dvpt, dsmt, dvmt = bonded_jump_pt(jvt, jst, Zpt, Zmt)
                 # side +: outward normal n
@@ -277,12 +283,20 @@ class MatrixFreeOperator:
         self.Jinv = np.ascontiguousarray(g.Jinv)
         self.absdet = np.ascontiguousarray(np.abs(g.detJ))
         self.Minv_ref = solver.Mref_inv
-        self.Binv = solver.Binv_scaled
-        B = self.Binv
+        self.invdet = 1.0 / self.absdet
+        B = np.linalg.inv(solver.material_blocks)  # per cell, unscaled
         if np.any(B[:, :2, 2:]) or np.any(B[:, 2:, :2]) or np.any(B[:, 0, 1]) or np.any(B[:, 1, 0]):
             raise RuntimeError("the matrix-free kernel expects a material block diag(1/rho, 1/rho) + stiffness "
                                "(isotropic density); use operator='assembled' for other materials")
+        # one row per distinct material: 1/rho (twice) and the 3x3 stiffness block
+        packed = np.concatenate([B[:, 0, 0:1], B[:, 1, 1:2], B[:, 2:, 2:].reshape(-1, 9)], axis=1)
+        table, mat = np.unique(packed, axis=0, return_inverse=True)
+        self.Btab = np.ascontiguousarray(table)
+        self.mat = np.ascontiguousarray(mat.reshape(-1), dtype=np.int32)
         self.dofs = np.ascontiguousarray(compat.cell_dofs(solver.V), dtype=np.int64)
+        nb = self.dofs.shape[1]
+        # DOLFINx numbers a DG space cell by cell: then the kernels index blocks directly
+        self.contiguous = bool(np.array_equal(self.dofs, np.arange(self.dofs.size).reshape(self.dofs.shape)))
         cs = np.sqrt(solver.mu_cell / solver.rho_cell)
         self.Zd = np.ascontiguousarray(solver.rho_cell * solver.cd_cell)
         self.Zs = np.ascontiguousarray(solver.rho_cell * cs)
@@ -299,8 +313,8 @@ class MatrixFreeOperator:
                     tables[3 * i + j] = ref.tabulate(pts)
         self.tables = tables
         self.fnodes, self.Mf = facet_nodes(ref, tables, self.qw)
-        self._volume, self._facets, self._dissipation, self._energies = _kernels(ref.nodes.shape[0],
-                                                                                 self.fnodes.shape[1])
+        self._volume, self._facets, self._dissipation, self._energies = _kernels(nb, self.fnodes.shape[1],
+                                                                                 self.contiguous)
         f_off, f_arr = compat.connectivity(mesh, tdim - 1, 0)
         c_off, c_arr = compat.connectivity(mesh, tdim - 1, tdim)
         facets = np.asarray(facets, dtype=np.int64)
@@ -315,6 +329,9 @@ class MatrixFreeOperator:
             else np.zeros((0, 2), dtype=np.int64)
         keep = np.any(c2 < self.nowned, axis=1)  # facets of owned cells only
         facets, c2 = facets[keep], c2[keep]
+        # visit the facets in cell order, so that both sides' blocks are mostly still in cache
+        order = np.lexsort((c2.max(axis=1), c2.min(axis=1)))
+        facets, c2 = facets[order], c2[order]
         x = mesh.geometry.x[:, :2]
         v2g = compat.vertex_to_geometry(mesh)
         va = x[v2g[f_arr[f_off[facets]]]]
@@ -375,8 +392,8 @@ class MatrixFreeOperator:
 
     def finish(self, xloc, out):
         """out (owned values) = M^{-1} (R + volume terms)."""
-        self._volume(out, self.R, xloc, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.absdet,
-                     self.Minv_ref, self.Binv)
+        self._volume(out, self.R, xloc, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
+                     self.Minv_ref, self.mat, self.Btab)
         self._R_clear = True
 
 

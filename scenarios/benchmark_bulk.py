@@ -44,9 +44,10 @@
 #
 # The matrix-free operator (:mod:`hydrofrac.matfree`) instead reads ``y`` once and
 # writes ``k`` once (16 bytes), round-trips the cell residual array (zero, accumulate,
-# read: 32 bytes) and reads its per-cell and per-facet data once (dofmap, inverse
-# Jacobian, |det J|, the 5×5 material block, impedances; the facets' cells, node-list
-# codes, normal and length), counted from the arrays' sizes: ~24 bytes per DOF at p = 1.
+# read: 32 bytes) and reads its per-cell and per-facet data once (inverse Jacobian,
+# 1/|det J|, a material index, and the dofmap only if the DG numbering is not cell by
+# cell; the facets' cells, node-list codes, normal, length and both cells' impedances),
+# counted from the arrays' sizes: ~10 bytes per DOF at p = 1.
 # The boundary facets' operator touches the boundary cells' rows only (not counted).
 # Re-reads of ``y`` by the up to three facets of a cell are assumed to hit the cache.
 # The bound is ``bandwidth / bytes`` DOF·stages/s.
@@ -110,9 +111,14 @@ def bytes_per_dof_stage(solver: Solver):
     n = solver.num_dofs
     if solver.matfree is not None:
         mf = solver.matfree
-        data = sum(a.nbytes for a in (mf.dofs[:mf.nowned], mf.Jinv[:mf.nowned], mf.absdet[:mf.nowned],
-                                       mf.Binv[:mf.nowned], mf.Zd[:mf.nowned], mf.Zs[:mf.nowned], mf.fcells,
-                                       mf.fcodes, mf.normal, mf.length))
+        # per cell: the inverse Jacobian, 1/|det J|, the material index (and the dofmap, unless the
+        # DG numbering is cell by cell, as DOLFINx makes it); per facet: cells, codes, normal, length,
+        # the two cells' impedances
+        cell_data = [mf.Jinv[:mf.nowned], mf.invdet[:mf.nowned], mf.mat[:mf.nowned]]
+        if not mf.contiguous:
+            cell_data.append(mf.dofs[:mf.nowned])
+        data = sum(a.nbytes for a in cell_data + [mf.fcells, mf.fcodes, mf.normal, mf.length])
+        data += 2 * 2 * 8 * mf.fcells.shape[0]  # Zd, Zs of both cells
         operator = solver.comm.allreduce(data, op=MPI.SUM) / n + 16 + 32
     else:
         info = solver.A.getInfo(info=solver.A.InfoType.GLOBAL_SUM)
