@@ -34,7 +34,12 @@ class GrowthParams:
     criterion is flat near its maximum (mode I: s̆ ∝ cos²(θ/2), 0.03 % below the peak at 2°),
     so the fit over many samples keeps the direction from following local noise of the
     discrete near-tip field.  A maximum within ``edge_margin`` [deg] of the window's edge is
-    not acted on (the tip waits): the field there is not the tip's own."""
+    not acted on (the tip waits): the field there is not the tip's own.
+
+    ``direction``: "sampled" (default) takes the maximiser of the sampled s̆(θ); "cod" takes
+    the onset from the samples but the angle from the singular near-tip field, with
+    K_II/K_I from the crack's own slip and opening within ``r`` behind the tip
+    (:func:`cod_direction`; a tip with no grown segment yet uses the samples)."""
 
     r: float
     n_angles: int = 121
@@ -42,6 +47,7 @@ class GrowthParams:
     beta: float = 1.0
     fit_window: float = 30.0
     edge_margin: float = 5.0
+    direction: str = "sampled"
 
     def __post_init__(self):
         if not self.r > 0:
@@ -54,6 +60,8 @@ class GrowthParams:
             raise ValueError(f"growth beta must be >= 0; got {self.beta}")
         if not 0 <= self.fit_window < 180:
             raise ValueError(f"growth fit_window must be in [0, 180) degrees; got {self.fit_window}")
+        if self.direction not in ("sampled", "cod"):
+            raise ValueError(f"growth direction must be 'sampled' or 'cod'; got {self.direction!r}")
 
 
 def stress_at(solver, points):
@@ -170,12 +178,35 @@ class Tip:
     active: bool = True
 
 
-def advance_tips(solver, tips, params: GrowthParams, da: float, threshold: float, ready=None):
+def cod_direction(iface, tag, tip, params: GrowthParams):
+    """Growth angle [rad] from the crack's opening and slip near the tip (displacement
+    correlation): behind a tip, opening δ and slip s both grow like sqrt(r), with
+    K_I ∝ δ and K_II ∝ −s (the interface's slip is the jump u− − u+ along its tangent, and
+    for either orientation of a facet that is minus Williams' upper-minus-lower jump along
+    the crack direction).  The ratio K_II/K_I = −Σ s / Σ δ over the Gauss points of crack
+    ``tag`` within ``params.r`` of the tip then gives the angle of the maximum-s̆ criterion of
+    the singular field (:func:`near_tip_direction`, with ``params.beta``).  None if the crack
+    has no points there or is not open."""
+    pts = iface.points.reshape(-1, 2)
+    on = np.repeat(iface.crack_tag == tag, iface.nq) & (np.linalg.norm(pts - np.asarray(tip, float), axis=1)
+                                                        <= params.r)
+    w = iface.weights.reshape(-1)[on]
+    tot = iface.solver.comm.allreduce(np.array([w @ iface.state[1].reshape(-1)[on],
+                                                w @ iface.state[2].reshape(-1)[on], w.size], dtype=float),
+                                      op=MPI.SUM)
+    if tot[2] == 0 or not tot[0] > 0:
+        return None
+    return near_tip_direction(1.0, -tot[1] / tot[0], params.beta)
+
+
+def advance_tips(solver, tips, params: GrowthParams, da: float, threshold: float, ready=None, direction_of=None):
     """Evaluate the criterion at every active (and, if ``ready`` is given, ready) tip; where
     the maximum effective stress reaches
     ``threshold`` (the damage onset s_ by default in the drivers), move the tip by ``da`` in
     the maximising direction.  Returns the list of (index, angle [rad] relative to the old
-    direction, s̆ max, new point) of the tips that advanced; ``tips`` are updated in place."""
+    direction, s̆ max, new point) of the tips that advanced; ``tips`` are updated in place.
+    ``direction_of(i)``, if given, may return the angle to use instead of the sampled
+    maximiser (None: the sampled one)."""
     if not da > 0:
         raise ValueError(f"growth increment da must be > 0 m; got {da}")
     moved = []
@@ -185,7 +216,10 @@ def advance_tips(solver, tips, params: GrowthParams, da: float, threshold: float
         theta, smax = growth_direction(solver, tip.point, tip.direction, params)
         if not smax >= threshold:
             continue
-        if abs(np.degrees(theta)) > params.max_angle - params.edge_margin:
+        other = direction_of(i) if direction_of is not None else None
+        if other is not None:
+            theta = other
+        elif abs(np.degrees(theta)) > params.max_angle - params.edge_margin:
             # the maximum sits at the edge of the sampled window: the field there is not the
             # tip's (e.g. a passing wave); wait for a maximum inside the window
             continue
@@ -292,7 +326,13 @@ class GrowthDriver:
                  for i, p in enumerate(self.paths)]
         before_state = self.checkpoint_state()
         before = [(t.point.copy(), t.direction.copy()) for t in self.tips]
-        moved = advance_tips(solver, self.tips, self.params, self.da, self.threshold, ready=ready)
+        direction_of = None
+        if self.params.direction == "cod":
+            def direction_of(i):
+                return (cod_direction(self.iface, self.tags[i], self.tips[i].point, self.params)
+                        if len(self.paths[i]) > 1 else None)
+        moved = advance_tips(solver, self.tips, self.params, self.da, self.threshold, ready=ready,
+                             direction_of=direction_of)
         grown = []
         for i, theta, smax, point in moved:
             if self.inside is not None and not self.inside(point):

@@ -183,7 +183,8 @@ def growth_driver(scene, regularized, degree, args):
         tips.append(Tip((dom.wellbore_radius + pf.length) * d, d))
     h = dom.h_crack
     margin = dom.half_width - 2 * h
-    return GrowthDriver(build, tips, GrowthParams(r=args.growth_r * h, beta=args.growth_beta), da=args.growth_da * h,
+    params = GrowthParams(r=args.growth_r * h, beta=args.growth_beta, direction=args.growth_direction)
+    return GrowthDriver(build, tips, params, da=args.growth_da * h,
                         threshold=damage.s_onset,
                         tags=[PATH + k for k in range(len(tips))], domain_size=2 * dom.half_width,
                         inside=lambda p: abs(p[0]) < margin and abs(p[1]) < margin,
@@ -216,6 +217,10 @@ def main(argv=None, regularized=None):
                         help="with --growth: shear factor beta of the growth criterion (default 0: the largest "
                              "tensile normal traction; 1 = the damage law's, which here follows the shear of the "
                              "compressive pressure waves and curls the cracks: see the README)")
+    parser.add_argument("--growth-direction", choices=("sampled", "cod"), default="sampled",
+                        help="with --growth: 'sampled' (default) grows towards the maximum of the sampled "
+                             "criterion; 'cod' keeps the sampled onset but takes the angle of the singular "
+                             "near-tip field, K_II/K_I from the crack's slip and opening within r of the tip")
     parser.add_argument("--growth-da", type=float, default=2.0,
                         help="with --growth: length of a growth step, in crack facet sizes h (default 2)")
     args = parser.parse_args(argv)

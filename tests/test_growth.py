@@ -14,6 +14,11 @@ ahead of the tip (``GrowthParams``):
   -28.9° (exact Westergaard field of the infinite plate, computed in the test).  The DG
   answer must be within 5° of the latter, the analytical answer for the sampled criterion;
   the K-field angle is its r -> 0 limit, below the resolution of the DG near-tip field.
+* **The K-field angle from the crack's own displacement jumps** (``GrowthParams(direction=
+  "cod")``): for this crack the opening and slip are both proportional to sqrt(a² − x²), so
+  their ratio gives K_II/K_I = tan 30° exactly at any distance behind the tip; the angle of
+  the criterion for the singular field is then -43.2° (mixed mode) and 0° (mode I), within
+  the 5° and 2° of the two checks.
 """
 import math
 
@@ -24,7 +29,7 @@ from mpi4py import MPI
 import exact
 from hydrofrac import ROCK
 from hydrofrac.boundary import Absorbing
-from hydrofrac.growth import GrowthParams, argmax_parabola, growth_direction, near_tip_direction
+from hydrofrac.growth import GrowthParams, argmax_parabola, cod_direction, growth_direction, near_tip_direction
 from hydrofrac.interface import Crack, Interface, crack_facet_indices
 from hydrofrac.meshes.fractures import NATURAL, OUTER, Domain, Fracture, fracture_mesh
 from hydrofrac.solver import Solver
@@ -40,10 +45,10 @@ def static_crack(alpha_deg, comm=MPI.COMM_WORLD):
     cracks = [Crack(NATURAL, friction=0.0, damage=1.0)]
     solver = Solver(fm.mesh, 2, ROCK, facet_tags=fm.facet_tags, sigma0=s0, bcs=[Absorbing(OUTER, stress=s0)],
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks), relaxation=1500.0)
-    Interface(solver, fm.facet_tags, cracks)
+    iface = Interface(solver, fm.facet_tags, cracks)
     while solver.t < 3e-3:
         solver.step()
-    return solver
+    return solver, iface
 
 
 def exact_sampled_angle(alpha_deg, r, n=681):
@@ -65,11 +70,13 @@ def tips(alpha_deg):
 
 
 def test_mode_one_grows_straight():
-    solver = static_crack(0.0)
+    solver, iface = static_crack(0.0)
     for tip, d in tips(0.0):
         theta, s = growth_direction(solver, tip, d, GrowthParams(r=R))
         assert s > SIGMA  # the tip concentrates the stress
         assert abs(math.degrees(theta)) < 2.0, math.degrees(theta)
+        cod = math.degrees(cod_direction(iface, NATURAL, tip, GrowthParams(r=R, direction="cod")))
+        assert abs(cod) < 2.0, cod
 
 
 def test_mixed_mode_kink_angle():
@@ -79,16 +86,20 @@ def test_mixed_mode_kink_angle():
     assert k_field == pytest.approx(-43.2, abs=0.05)
     expected = math.degrees(exact_sampled_angle(alpha, R))
     assert expected == pytest.approx(-28.9, abs=0.1)
-    solver = static_crack(alpha)
+    solver, iface = static_crack(alpha)
     for tip, d in tips(alpha):
         theta = math.degrees(growth_direction(solver, tip, d, GrowthParams(r=R))[0])
-        print(f"tip {tip}: DG {theta:.2f} deg, exact field at r = {R} a: {expected:.2f} deg, K field {k_field:.2f} deg")
+        cod = math.degrees(cod_direction(iface, NATURAL, tip, GrowthParams(r=R, direction="cod")))
+        print(f"tip {tip}: DG {theta:.2f} deg, exact field at r = {R} a: {expected:.2f} deg, K field {k_field:.2f} deg, "
+              f"from the opening and slip {cod:.2f} deg")
         assert abs(theta - expected) < 5.0, (theta, expected)
         assert theta < 0  # kinks away from the shear, towards the tension-normal plane
+        assert abs(cod - k_field) < 5.0, (cod, k_field)
 
 
 @pytest.mark.parametrize("kw, word", [(dict(r=0.0), "r"), (dict(r=0.1, n_angles=2), "n_angles"),
-                                      (dict(r=0.1, max_angle=180.0), "max_angle"), (dict(r=0.1, beta=-1.0), "beta")])
+                                      (dict(r=0.1, max_angle=180.0), "max_angle"), (dict(r=0.1, beta=-1.0), "beta"),
+                                      (dict(r=0.1, direction="kink"), "direction")])
 def test_growth_params_bad_input(kw, word):
     with pytest.raises(ValueError, match=word):
         GrowthParams(**kw)
