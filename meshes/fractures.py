@@ -101,10 +101,13 @@ def fracture_points(frac: Fracture):
     return np.array([c - d, c + d])
 
 
-def _segments_cross(p, q, r, s):
-    """Proper crossing of segments pq and rs (shared end points do not count)."""
+def _segments_cross(p, q, r, s, tol=1e-9):
+    """Proper crossing of segments pq and rs (shared end points do not count, nor an end
+    point within ``tol`` [m] of the other segment's line: a crack that ends on another, or
+    on itself, at a point rounded to 1 nm, e.g. a growth tip that joins it)."""
     def orient(a, b, c):
-        return np.sign((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
+        cross = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        return 0.0 if abs(cross) <= tol * np.hypot(b[0] - a[0], b[1] - a[1]) else np.sign(cross)
     return (orient(p, q, r) * orient(p, q, s) < 0) and (orient(r, s, p) * orient(r, s, q) < 0)
 
 

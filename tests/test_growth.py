@@ -99,7 +99,10 @@ def test_mixed_mode_kink_angle():
 
 @pytest.mark.parametrize("kw, word", [(dict(r=0.0), "r"), (dict(r=0.1, n_angles=2), "n_angles"),
                                       (dict(r=0.1, max_angle=180.0), "max_angle"), (dict(r=0.1, beta=-1.0), "beta"),
-                                      (dict(r=0.1, direction="kink"), "direction")])
+                                      (dict(r=0.1, direction="kink"), "direction"),
+                                      (dict(r=0.1, cod_window=0.0), "cod_window"),
+                                      (dict(r=0.1, cod_relax=0.0), "cod_relax"),
+                                      (dict(r=0.1, cod_relax=1.5), "cod_relax")])
 def test_growth_params_bad_input(kw, word):
     with pytest.raises(ValueError, match=word):
         GrowthParams(**kw)
@@ -115,3 +118,33 @@ def test_tip_joins_the_first_crack_it_reaches():
     assert d._first_crossing(np.array([0.5, 0.0]), np.array([0.9, 0.0]), 0) is None  # stops short
     d.paths[1] = [np.array([0.7, 0.5]), np.array([0.7, -0.5])]  # another tip's path in the way
     np.testing.assert_allclose(d._first_crossing(np.array([0.5, 0.0]), np.array([1.5, 0.0]), 0), [0.7, 0.0])
+
+
+def test_tip_that_curls_back_joins_its_own_crack():
+    """A segment that would cross the tip's own earlier path ends on it (a self-intersecting
+    polyline cannot be meshed); the segment just behind the tip, which shares its start
+    point, does not count."""
+    from hydrofrac.growth import GrowthDriver, Tip
+    d = GrowthDriver(lambda polylines: (None, None), [Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0]))],
+                     GrowthParams(r=0.1), da=0.2, threshold=1.0, tags=[300])
+    d.paths[0] = [np.array(p, float) for p in ([0, 0], [1, 0], [1, 1], [0.5, 1.0])]
+    p = d.paths[0][-1]
+    np.testing.assert_allclose(d._first_crossing(p, np.array([0.5, -1.0]), 0), [0.5, 0.0])
+    assert d._first_crossing(p, np.array([0.5, 0.5]), 0) is None  # stops short of it
+    assert d._first_crossing(p, np.array([0.3, 1.2]), 0) is None  # away: the tip's own point is no hit
+
+
+def test_crack_that_joins_itself_is_meshed():
+    """A grown path that curls back and ends on its own earlier segment (at a point rounded
+    to 1 nm, as the driver writes it, here 0.4 nm past the segment) is a valid geometry: the
+    end point is not a crossing, Gmsh meshes the loop, and every segment is crack facets."""
+    from hydrofrac.meshes.fractures import PATH, Domain, fracture_mesh
+    dom = Domain(half_width=2.0, half_height=2.0, wellbore_radius=0.0, h_crack=0.1, h_far=0.5)
+    path = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 0.6], [0.5, 0.6], [0.5, -4e-10]])
+    fm = fracture_mesh(MPI.COMM_WORLD, dom, paths=[path])
+    facets = fm.facet_tags.find(PATH)
+    # 1.0 + 0.6 + 0.5 + 0.6 m at h = 0.1 m: at least 27 facets (fewer if a segment were lost)
+    assert MPI.COMM_WORLD.allreduce(facets.size, op=MPI.SUM) >= 27
+    with pytest.raises(ValueError, match="crosses itself"):  # 1 µm past it is a crossing
+        fracture_mesh(MPI.COMM_WORLD, dom, paths=[np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 0.6], [0.5, 0.6],
+                                                            [0.5, -1e-6]])])

@@ -134,6 +134,29 @@ def intersections(tmp_path_factory):
     return {mode: _run(f"intersection_{mode}.py", tmp) for mode in ("regularized", "unregularized")}
 
 
+def test_intersection_free_growth_stays_radial_and_joins(intersections):
+    """The scenarios' default: free growth, kink angle from the crack's opening and slip
+    (under-relaxed by 0.5).  By the 4-fold symmetry of the perforations the exact paths
+    are radial until the 0° crack nears the natural fracture: every segment within 5° of
+    radial (the tolerance of a predicted kink angle), every path within 2° overall (the
+    mode-I tolerance), 5 or more extensions per tip; the 0° crack joins the natural
+    fracture, the others do not reach anything."""
+    for mode, (s, out) in intersections.items():
+        g = json.loads((out / "growth.json").read_text())
+        assert [j["tip"] for j in g["joined"]] == [0], (mode, g["joined"])
+        assert g["joined"][0]["point"][0] == pytest.approx(1.2, abs=1e-9)
+        for i, path in enumerate(g["paths"]):
+            p = np.array(path)
+            assert len(p) >= 6, (mode, i, len(p) - 1)
+            radial = p[0] / np.linalg.norm(p[0])
+            seg = np.diff(p, axis=0)
+            ang = np.degrees(np.arctan2(seg[:, 0] * radial[1] - seg[:, 1] * radial[0], seg @ radial))
+            assert np.abs(ang).max() < 5.0, (mode, i, ang)
+            total = p[-1] - p[0]
+            assert abs(np.degrees(np.arctan2(total[0] * radial[1] - total[1] * radial[0], total @ radial))) < 2.0
+        assert s["accuracy"]["remeshes"] >= 5 and s["accuracy"]["joined"] == 1
+
+
 def test_intersection_happens_near_paper_time(intersections):
     for mode, (s, _) in intersections.items():
         t = s["accuracy"]["intersection_time"]

@@ -10,12 +10,20 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture(scope="module")
-def summary(tmp_path_factory):
-    out = tmp_path_factory.mktemp("refracture")
-    subprocess.run([sys.executable, str(ROOT / "scenarios" / "refracture.py"), "--quick", "--out", str(out)],
-                   check=True, cwd=ROOT, capture_output=True, text=True)
-    return json.loads((out / "summary.json").read_text())
+@pytest.fixture(scope="module", params=["premeshed", "growth"])
+def summary(request, tmp_path_factory):
+    """Both ways the cracks grow: along pre-meshed radial paths (the default), and freely
+    from the perforation tips with remeshing (``--growth``, remeshes while loaded and while
+    the load goes off)."""
+    out = tmp_path_factory.mktemp(f"refracture_{request.param}")
+    subprocess.run([sys.executable, str(ROOT / "scenarios" / "refracture.py"), "--quick", f"--{request.param}",
+                    "--out", str(out)], check=True, cwd=ROOT, capture_output=True, text=True)
+    s = json.loads((out / "summary.json").read_text())
+    if request.param == "growth":
+        acc = s["accuracy"]
+        assert acc["remeshes"] >= 5 and acc["extensions"] >= 4 * 5, acc  # every tip grew
+        assert s["remeshing"]["remeshes"] == acc["remeshes"]
+    return s
 
 
 def test_cracks_close_to_contact_without_energy_growth(summary):
