@@ -113,3 +113,4 @@ studies: setup
 	$(PY) -m hydrofrac.postprocess.study_work_precision_cracks
 	$(PY) -m hydrofrac.postprocess.study_contact_stability
 	$(MPIRUN) -n 2 $(PY) -m hydrofrac.postprocess.study_mesh_grading
+	$(PY) -m hydrofrac.postprocess.study_local_time_stepping

@@ -219,3 +219,16 @@ def test_history_after_restart(tmp_path):
     h = rundata.read_history(csv)
     assert h["step"].tolist() == [0, 5, 10, 15]
     assert h["kinetic"].tolist() == [0, 1.5, 2.5, 3]
+
+
+def test_local_time_stepping_gain():
+    """The LTS study's work model: cells at 1, 1, 2, 4 and 3 times the global step; ideal
+    per-cell steps do (1 + 1 + 1/2 + 1/4 + 1/3)/5 of the work, 2^k levels (3 -> 2)
+    (1 + 1 + 1/2 + 1/4 + 1/2)/5, or with one level all of it."""
+    from hydrofrac.postprocess.study_local_time_stepping import lts_gain
+    dt = np.array([1.0, 1.0, 2.0, 4.0, 3.0]) * 1e-6
+    g = lts_gain(dt, 1e-6, levels=6)
+    assert g["work_ideal"] == pytest.approx((1 + 1 + 0.5 + 0.25 + 1 / 3) / 5, rel=1e-12)
+    assert g["work_levels"] == pytest.approx((1 + 1 + 0.5 + 0.25 + 0.5) / 5, rel=1e-12)
+    assert g["finest_level_share"] == pytest.approx(0.4) and g["levels_used"] == 3
+    assert lts_gain(dt, 1e-6, levels=1)["work_levels"] == pytest.approx(1.0)
