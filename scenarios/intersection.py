@@ -173,7 +173,8 @@ class Monitor:
 def growth_driver(scene, regularized, degree, args):
     from hydrofrac.meshes.fractures import fracture_points
     comm = MPI.COMM_WORLD
-    dom, perfs, nfs, _ = geometry(x_nf=args.x_nf, quick=args.quick, nf_tau=args.nf_tau)
+    dom, perfs, nfs, _ = geometry(x_nf=args.x_nf, quick=args.quick, nf_tau=args.nf_tau, h_crack=args.h_crack,
+                                  h_far=args.h_far)
     damage = DamageParams(tau=args.tau)
 
     def build(polylines):
@@ -202,16 +203,24 @@ def main(argv=None, regularized=None):
                              "scale delta~ = tau~ s_bar / Z~, hence the pressure-factor aperture delta_bar' delta~ "
                              "(default 1 ms: 27 µm; the load front then crosses the fracture in a few hundred µs, "
                              "as in the paper's fig. 8-9)")
+    parser.add_argument("--h-crack", type=float, default=None,
+                        help="mesh size at the cracks [m] (default 0.03, --quick 0.06; Δa and r scale with it)")
+    parser.add_argument("--h-far", type=float, default=None,
+                        help="mesh size far from the cracks [m] (default 0.5, --quick 0.8)")
     wellbore.add_growth_arguments(parser)
     args = parser.parse_args(argv)
     wellbore.check_growth_arguments(parser, args)
+    for name in ("h_crack", "h_far"):
+        v = getattr(args, name)
+        if v is not None and not 0 < v < 1.0:
+            parser.error(f"--{name.replace('_', '-')} must be in (0, 1) m; got {v}")
     reg = args.reg if regularized is None else regularized
     name = "intersection_regularized" if reg else "intersection_unregularized"
     degree = args.degree or 2
     scene, driver = Scene(), None
     if not args.growth:
         scene.set(*setup(regularized=reg, degree=degree, quick=args.quick, x_nf=args.x_nf, tau=args.tau,
-                         nf_tau=args.nf_tau))
+                         nf_tau=args.nf_tau, h_crack=args.h_crack, h_far=args.h_far))
     # The freely grown crack reaches the natural fracture at ~820 µs (full size; ~920 µs at
     # --quick, Δa = 12 cm) and loads it from ~880 µs: 1.2 ms shows the load front cross the
     # natural fracture (paper fig. 8-9); --quick's 1.1 ms leaves the 50 µs after the

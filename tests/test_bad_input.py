@@ -106,3 +106,32 @@ def test_history_lengths_must_match():
 def test_run_end_time_must_be_positive():
     with pytest.raises(ValueError, match=r"t_end must be a positive time in seconds; got "):
         RunOptions(t_end=0.0)
+
+
+def _scenario(name):
+    import importlib.util
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[1] / "scenarios" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"scenario_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("name, args, word", [
+    ("intersection", ["--growth-da", "0"], "--growth-da"),
+    ("intersection", ["--growth-r", "-1"], "--growth-r"),
+    ("intersection", ["--growth-cod-relax", "1.5"], "--growth-cod-relax"),
+    ("intersection", ["--growth-cod-window", "0"], "--growth-cod-window"),
+    ("intersection", ["--h-crack", "0"], "--h-crack"),
+    ("refracture", ["--growth", "--growth-da", "-2"], "--growth-da"),
+    ("refracture", ["--growth", "--growth-beta", "-1"], "--growth-beta"),
+])
+def test_growth_options_rejected_before_meshing(name, args, word, capsys, tmp_path):
+    """Bad growth or mesh options stop a wellbore scenario at once (exit 2) with the option
+    and its valid range named, before any meshing or output."""
+    with pytest.raises(SystemExit) as info:
+        _scenario(name).main(["--quick", "--out", str(tmp_path / "run"), *args])
+    assert info.value.code == 2
+    assert word in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
