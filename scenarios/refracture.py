@@ -164,6 +164,8 @@ class Monitor:
                 "network_length": self.hyd.loaded_length()[1]}
 
     def accuracy(self):
+        if self.scene.iface is not self.iface:  # the run ended right after a remesh
+            self._follow_remesh()
         iface, hyd, comm = self.iface, self.hyd, self.s.comm
         # order of re-loading against the distance along the network (gathered on all ranks)
         still = self.still_loaded if self.still_loaded is not None else np.zeros(self.t_reach.size, bool)
