@@ -83,6 +83,9 @@ def add_growth_arguments(parser, default=True):
                              "(default 0.5; 1 zigzags beyond ~1 m in the full-size intersection: see the README)")
     parser.add_argument("--growth-da", type=float, default=2.0,
                         help="length of a growth step, in crack facet sizes h (default 2)")
+    parser.add_argument("--growth-max-radius", type=float, default=None,
+                        help="tips stop at this distance from the wellbore centre [m] (default: only the outer "
+                             "boundary stops them)")
 
 
 def check_growth_arguments(parser, args):
@@ -95,6 +98,8 @@ def check_growth_arguments(parser, args):
         parser.error(f"--growth-beta must be >= 0; got {args.growth_beta}")
     if not 0 < args.growth_cod_relax <= 1:
         parser.error(f"--growth-cod-relax must be in (0, 1]; got {args.growth_cod_relax}")
+    if args.growth_max_radius is not None and not args.growth_max_radius > 0:
+        parser.error(f"--growth-max-radius must be > 0 m; got {args.growth_max_radius}")
     if args.growth_cod_window is not None and not args.growth_cod_window > 0:
         parser.error(f"--growth-cod-window must be > 0 (a distance in facet sizes); got {args.growth_cod_window}")
 
@@ -103,7 +108,8 @@ def growth_driver(build, domain: Domain, perforations: Sequence[Perforation], da
                   obstacles=()):
     """A :class:`~hydrofrac.growth.GrowthDriver` that grows a crack from every perforation tip,
     with the options of :func:`add_growth_arguments` (r, Δa in facet sizes ``domain.h_crack``).
-    The onset is the damage law's s_; tips stop 2h before the outer boundary and join the
+    The onset is the damage law's s_; tips stop 2h before the outer boundary (and at
+    ``args.growth_max_radius`` from the centre, if given) and join the
     ``obstacles`` (polylines) or another crack they reach.  ``build(polylines)`` makes the
     solver and interface of a geometry."""
     from .growth import GrowthDriver, GrowthParams, Tip
@@ -114,10 +120,14 @@ def growth_driver(build, domain: Domain, perforations: Sequence[Perforation], da
         tips.append(Tip((domain.wellbore_radius + pf.length) * d, d))
     h = domain.h_crack
     mx, my = domain.half_width - 2 * h, domain.half_height - 2 * h
+    rmax = np.inf if args.growth_max_radius is None else args.growth_max_radius
+    if not rmax > domain.wellbore_radius + max((pf.length for pf in perforations), default=0.0):
+        raise ValueError(f"--growth-max-radius {rmax} m does not reach beyond the perforation tips; make it larger")
     params = GrowthParams(r=args.growth_r * h, beta=args.growth_beta, direction=args.growth_direction,
                           cod_window=(args.growth_cod_window * h if args.growth_cod_window else None),
                           cod_relax=args.growth_cod_relax)
     return GrowthDriver(build, tips, params, da=args.growth_da * h, threshold=damage.s_onset,
                         tags=[PATH + k for k in range(len(tips))],
                         domain_size=2 * min(domain.half_width, domain.half_height),
-                        inside=lambda p: abs(p[0]) < mx and abs(p[1]) < my, obstacles=obstacles)
+                        inside=lambda p: abs(p[0]) < mx and abs(p[1]) < my and np.hypot(p[0], p[1]) < rmax,
+                        obstacles=obstacles)

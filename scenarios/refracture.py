@@ -2,20 +2,22 @@
 #
 # Four perforations leave a wellbore in confined rock (no natural fracture).
 # The fluid pressure p_h is applied (2.425 → 19.4 MPa in 1 µs), held, removed
-# completely (p_h = 0 by 5 ms) and re-applied from 8 ms.  The cracks grow along
-# their potential paths while loaded; after the removal the confinement closes
+# completely (p_h = 0 by 5 ms) and re-applied from 8 ms.  The cracks grow while
+# loaded; after the removal the confinement closes
 # them: the regularised contact fraction η takes them smoothly from separation
 # to contact (the opening never goes below the permitted penetration).  When the
 # load comes back, the pressure factor f_p re-applies it from the perforations
 # outward, because a crack vertex uses the aperture of *all* loaded facets that
 # meet there (model.md §5).
 #
-# `--growth`: the cracks grow freely from the perforation tips with Gmsh remeshing
-# (the intersection scenario's driver and criterion: `hydrofrac.wellbore.growth_driver`),
-# instead of along pre-meshed radial potential paths (bonded interfaces, D = 0; the
-# default here, see the README for the comparison).
+# The cracks grow freely from the perforation tips with Gmsh remeshing (the intersection
+# scenario's driver and criterion: `hydrofrac.wellbore.growth_driver`), out to the extent of
+# the pre-meshed problem (`--growth-max-radius`, default 2.9 m, `--quick` 0.65 m): without a
+# limit they run to the outer boundary while the load is held and then do not close in the
+# off period (README).  `--premeshed` grows them along radial potential paths (bonded
+# interfaces, D = 0) of that extent instead.
 #
-#     mpirun -n 2 python scenarios/refracture.py [--quick] [--growth] [--out DIR]
+#     mpirun -n 2 python scenarios/refracture.py [--quick] [--premeshed] [--out DIR]
 from __future__ import annotations
 
 from pathlib import Path
@@ -66,9 +68,13 @@ def setup(comm=MPI.COMM_WORLD, quick=False, degree=2, tau=30e-6):
 def growth_setup(args, degree, comm=MPI.COMM_WORLD):
     """The free-growth problem: a scene whose solver, interface and hydraulics the driver
     replaces at every remesh, the driver, and (t_off, t_on, t_end)."""
-    dom, perfs, _, (pressure, t_off, t_on, t_end) = geometry(args.quick)
+    dom, perfs, lengths, (pressure, t_off, t_on, t_end) = geometry(args.quick)
     damage = DamageParams(tau=args.tau)
     scene = Scene()
+    if args.growth_max_radius is None:
+        # the cracks' extent of the pre-meshed problem: without a limit they run to the outer
+        # boundary while the load is held, and then do not close in the off period (README)
+        args.growth_max_radius = dom.wellbore_radius + perfs[0].length + lengths[0]
 
     def build(polylines):
         paths, tags = polylines
@@ -208,7 +214,7 @@ class Monitor:
 def main(argv=None):
     parser = scenario_parser("Re-fracturing under an on/off/on hydraulic load (paper §3.2)")
     parser.add_argument("--tau", type=float, default=30e-6, help="damage relaxation time tau~ [s]")
-    wellbore.add_growth_arguments(parser, default=False)
+    wellbore.add_growth_arguments(parser)
     args = parser.parse_args(argv)
     wellbore.check_growth_arguments(parser, args)
     degree = args.degree or (1 if args.quick else 2)

@@ -126,6 +126,7 @@ def _scenario(name):
     ("intersection", ["--h-crack", "0"], "--h-crack"),
     ("refracture", ["--growth", "--growth-da", "-2"], "--growth-da"),
     ("refracture", ["--growth", "--growth-beta", "-1"], "--growth-beta"),
+    ("refracture", ["--growth-max-radius", "-1"], "--growth-max-radius"),
 ])
 def test_growth_options_rejected_before_meshing(name, args, word, capsys, tmp_path):
     """Bad growth or mesh options stop a wellbore scenario at once (exit 2) with the option
@@ -134,4 +135,12 @@ def test_growth_options_rejected_before_meshing(name, args, word, capsys, tmp_pa
         _scenario(name).main(["--quick", "--out", str(tmp_path / "run"), *args])
     assert info.value.code == 2
     assert word in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+
+
+def test_growth_limit_inside_the_perforations_rejected(tmp_path):
+    """A growth limit that does not reach beyond the perforation tips is rejected before the
+    first mesh is made."""
+    with pytest.raises(ValueError, match="perforation tips"):
+        _scenario("refracture").main(["--quick", "--growth-max-radius", "0.2", "--out", str(tmp_path / "run")])
     assert not (tmp_path / "run").exists()

@@ -12,16 +12,18 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module", params=["premeshed", "growth"])
 def summary(request, tmp_path_factory):
-    """Both ways the cracks grow: along pre-meshed radial paths (the default), and freely
-    from the perforation tips with remeshing (``--growth``, remeshes while loaded and while
-    the load goes off)."""
+    """Both ways the cracks grow: freely from the perforation tips with remeshing (the
+    default, ``--growth``), and along pre-meshed radial paths (``--premeshed``)."""
     out = tmp_path_factory.mktemp(f"refracture_{request.param}")
     subprocess.run([sys.executable, str(ROOT / "scenarios" / "refracture.py"), "--quick", f"--{request.param}",
                     "--out", str(out)], check=True, cwd=ROOT, capture_output=True, text=True)
     s = json.loads((out / "summary.json").read_text())
     if request.param == "growth":
         acc = s["accuracy"]
-        assert acc["remeshes"] >= 5 and acc["extensions"] >= 4 * 5, acc  # every tip grew
+        # every tip grew to within one step (0.1 m) of the pre-meshed paths' extent (0.65 m
+        # from the centre, 0.4 m beyond the perforation tips), where growth stops
+        assert acc["remeshes"] >= 3 and acc["extensions"] >= 4 * 3, acc
+        assert acc["grown_length"] >= 4 * (0.4 - 0.1) - 1e-9, acc
         assert s["remeshing"]["remeshes"] == acc["remeshes"]
     return s
 
