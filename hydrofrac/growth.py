@@ -197,9 +197,10 @@ def cod_direction(iface, tag, tip, params: GrowthParams):
     K_I ∝ δ and K_II ∝ −s (the interface's slip is the jump u− − u+ along its tangent, and
     for either orientation of a facet that is minus Williams' upper-minus-lower jump along
     the crack direction).  The ratio K_II/K_I = −Σ s / Σ δ over the Gauss points of crack
-    ``tag`` within ``params.r`` of the tip then gives the angle of the maximum-s̆ criterion of
-    the singular field (:func:`near_tip_direction`, with ``params.beta``).  None if the crack
-    has no points there or is not open."""
+    ``tag`` within ``params.cod_window`` (default ``params.r``) of the tip then gives the angle
+    of the maximum-s̆ criterion of the singular field (:func:`near_tip_direction`, with
+    ``params.beta``), times ``params.cod_relax``.  None if the crack has no points there or
+    is not open."""
     pts = iface.points.reshape(-1, 2)
     on = np.repeat(iface.crack_tag == tag, iface.nq) & (np.linalg.norm(pts - np.asarray(tip, float), axis=1)
                                                         <= (params.cod_window or params.r))

@@ -54,16 +54,15 @@ def build(comm=MPI.COMM_WORLD, domain: Domain = Domain(), perforations: Sequence
 
 
 # ----------------------------------------------------------------------------- free growth
-def add_growth_arguments(parser, default=True):
+def add_growth_arguments(parser):
     """The free-growth options shared by the wellbore scenarios (intersection, re-fracture):
-    ``--growth`` / ``--premeshed`` and the criterion's parameters, in crack-facet sizes h."""
+    ``--growth`` (the default) / ``--premeshed`` and the criterion's parameters, in
+    crack-facet sizes h."""
     g = parser.add_mutually_exclusive_group()
-    g.add_argument("--growth", dest="growth", action="store_true", default=default,
-                   help="free crack growth from the perforation tips with Gmsh remeshing"
-                        + (" (default)" if default else ""))
+    g.add_argument("--growth", dest="growth", action="store_true", default=True,
+                   help="free crack growth from the perforation tips with Gmsh remeshing (default)")
     g.add_argument("--premeshed", dest="growth", action="store_false",
-                   help="grow along pre-meshed radial potential paths instead (no remeshing)"
-                        + ("" if default else " (default)"))
+                   help="grow along pre-meshed radial potential paths instead (no remeshing)")
     parser.add_argument("--growth-r", type=float, default=4.0,
                         help="sampling distance of the growth criterion ahead of a tip, in crack facet sizes h "
                              "(default 4)")
