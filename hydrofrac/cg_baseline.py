@@ -73,7 +73,7 @@ class CentralDifferenceCG:
             from petsc4py import PETSc
             # Dirichlet rows and columns of M become identity rows, so that the boundary rows
             # of K u (which lack the boundary traction) do not pollute the interior
-            rstart = V.dofmap.index_map.local_range[0] * 2
+            rstart = compat.index_offset(V) * 2
             M.zeroRowsColumns((self.bdofs + rstart).astype(PETSc.IntType), diag=1.0)
             self.M = M
             self.ksp = PETSc.KSP().create(self.comm)
@@ -145,9 +145,9 @@ class CentralDifferenceCG:
         self.step()
         unew = self.x[1]
         fu, fv = compat.function(self.V), compat.function(self.V)
-        own = fu.vector.array.size
-        fu.vector.array[:] = saved[1].array_r[:own]
-        fv.vector.array[:] = (unew.array_r - saved[0].array_r)[:own] / (2 * self.dt)
+        own = compat.function_vector(fu).array.size
+        compat.function_vector(fu).array[:] = saved[1].array_r[:own]
+        compat.function_vector(fv).array[:] = (unew.array_r - saved[0].array_r)[:own] / (2 * self.dt)
         fu.x.scatter_forward()
         fv.x.scatter_forward()
         self.x[0], self.x[1], self.t = saved[0], saved[1], saved[2]

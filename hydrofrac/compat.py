@@ -15,10 +15,32 @@ from mpi4py import MPI
 import dolfinx
 import dolfinx.fem
 import dolfinx.fem.petsc
+import dolfinx.graph
 import dolfinx.mesh
 
-# FFCx/cffi JIT logs every compile at INFO on the root logger: keep CI logs readable.
-logging.getLogger().setLevel(logging.WARNING)
+
+
+class _BelowWarning(logging.Filter):
+    def filter(self, record):
+        return record.levelno >= logging.WARNING
+
+
+_QUIET = _BelowWarning()
+
+
+def quiet_form_compiler(quiet: bool = True):
+    """Hide (or show, ``quiet=False``) the INFO lines of the form compiler's JIT: FFCx and
+    the C build it drives (setuptools resets the root logger to INFO at every compile, so
+    the filter sits on the handlers)."""
+    import ffcx  # noqa: F401  (installs the root handler that the JIT logs to)
+    root = logging.getLogger()
+    for h in root.handlers:
+        (h.addFilter if quiet else h.removeFilter)(_QUIET)
+    for name in ("ffcx", "UFL", "ufl"):
+        logging.getLogger(name).setLevel(logging.WARNING if quiet else logging.INFO)
+
+
+quiet_form_compiler(True)
 
 DOLFINX_VERSION = dolfinx.__version__
 GHOST_MODE = dolfinx.mesh.GhostMode.shared_facet  # DG needs the neighbour cell across every facet
@@ -33,11 +55,48 @@ def create_rectangle(comm, p0, p1, nx, ny, diagonal="right"):
                                          dolfinx.mesh.CellType.triangle, GHOST_MODE, diagonal=diag)
 
 
+def _ordered_partition(comm, nparts, graph, ghosting):
+    """A deterministic graph partition: the dual graph (all on one rank, as Gmsh's mesh comes)
+    in reverse Cuthill-McKee order, cut into ``nparts`` equal slabs; with ``ghosting`` every
+    cell also goes to the ranks of its facet neighbours.  SCOTCH's partition of the same
+    mesh differs from one call to the next in a process, so a rebuilt mesh (a restart of a
+    remeshing run) would not be the one the checkpoint was written on."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+    from dolfinx.cpp.graph import AdjacencyList_int32
+    n = graph.num_nodes
+    offsets = np.asarray(graph.offsets)
+    if n == 0:
+        return AdjacencyList_int32(np.zeros(0, np.int32), np.zeros(1, np.int32))
+    nbr = np.asarray(graph.array)
+    rows = np.repeat(np.arange(n), np.diff(offsets))
+    if nbr.size and nbr.max() >= n:  # the graph is not all here: leave it to SCOTCH
+        return dolfinx.graph.partitioner_scotch()(comm, nparts, graph, ghosting)
+    A = sp.csr_matrix((np.ones(nbr.size), (rows, nbr)), shape=(n, n))
+    order = reverse_cuthill_mckee(A, symmetric_mode=True)
+    owner = np.empty(n, np.int32)
+    owner[order] = (np.arange(n) * nparts // n).astype(np.int32)
+    if not ghosting or nparts == 1:
+        return AdjacencyList_int32(owner, np.arange(n + 1, dtype=np.int32))
+    dest = [[int(owner[i])] + sorted(set(owner[nbr[offsets[i]:offsets[i + 1]]].tolist()) - {int(owner[i])})
+            for i in range(n)]
+    lengths = np.array([len(d) for d in dest], np.int32)
+    return AdjacencyList_int32(np.concatenate(dest).astype(np.int32), np.r_[0, np.cumsum(lengths)].astype(np.int32))
+
+
 def gmsh_model_to_mesh(model, comm, rank=0, gdim=2):
-    """Gmsh model (on ``rank``) -> (mesh, cell_tags, facet_tags) (0.9: ``gmshio.model_to_mesh``
-    returns the same triple; the partitioner argument changed)."""
+    """Gmsh model (on ``rank``) -> (mesh, cell_tags, facet_tags), distributed by
+    :func:`_ordered_partition` (0.9: ``gmshio.model_to_mesh`` returns the same triple and takes
+    the partitioner as an argument)."""
+    import functools
     from dolfinx.io import gmshio
-    return gmshio.model_to_mesh(model, comm, rank, gdim=gdim)
+    partitioner = dolfinx.mesh.create_cell_partitioner(_ordered_partition)
+    default = gmshio.create_mesh
+    gmshio.create_mesh = functools.partial(dolfinx.mesh.create_mesh, partitioner=partitioner)
+    try:
+        return gmshio.model_to_mesh(model, comm, rank, gdim=gdim)
+    finally:
+        gmshio.create_mesh = default
 
 
 def meshtags(mesh, dim, entities, values):
@@ -188,6 +247,16 @@ def create_vector(V):
 
 def measure(kind, mesh, subdomain_data=None, **kw):
     return ufl.Measure(kind, domain=mesh, subdomain_data=subdomain_data, **kw)
+
+
+def function_vector(u):
+    """The PETSc vector of a Function (0.9: ``u.x.petsc_vec``)."""
+    return u.vector
+
+
+def index_offset(V):
+    """Global index of this rank's first owned block (0.9: ``index_map.local_range[0]`` still)."""
+    return V.dofmap.index_map.local_range[0]
 
 
 def function_array_of_vec(vec):

@@ -46,7 +46,7 @@ class GrowthParams:
     several extensions towards K_II = 0.  On a grown, kinked crack the full angle can
     overshoot: a kink puts slip of the other sign into the next window, and the paths of
     the full-size intersection problem zigzag with growing amplitude beyond ~1 m with 1;
-    with 0.5 they stay within 2° of radial (README)."""
+    with 0.5 they stay within 2° of radial (docs/studies/growth.md)."""
 
     r: float
     n_angles: int = 121
@@ -267,9 +267,9 @@ def segment_damage(iface, tag, p0, p1):
 class GrowthDriver:
     """Free crack growth with remeshing, as a ``remesh`` hook of :func:`hydrofrac.run.run`.
 
-    ``build(paths, tags) -> (solver, interface)`` meshes the scene with the growth paths
-    (polylines (k, 2), one per tip, facet tag ``tags[i]``, bonded D = 0 crack) and sets up the
-    solver.  Every ``check_every`` steps the driver evaluates the criterion at the tips whose
+    ``build((paths, tags)) -> Problem`` meshes the scene with the growth paths (polylines
+    (k, 2), one per tip, facet tag ``tags[i]``, bonded D = 0 crack) and builds its
+    :class:`~hydrofrac.problem.Problem`.  Every ``check_every`` steps the driver evaluates the criterion at the tips whose
     last segment has mostly debonded (mean D >= ``ready_damage``, default 0.5: the far end of a
     segment, where the stress is below s̄, may only damage towards D_t < 1); tips where s̆ reaches
     ``threshold`` advance by ``da`` (all of them at once: one remesh per batch), tips leaving
@@ -277,7 +277,7 @@ class GrowthDriver:
     A new segment that crosses another crack (one of the ``obstacles`` polylines, e.g.
     natural fractures, or another growth path) ends on it and its tip stops: the crack joins
     that one (the mesh shares the vertex, so union-find merges their networks).  Then it remeshes, transfers fields and interface state
-    (:mod:`hydrofrac.transfer`) and returns the new solver; otherwise None.
+    (:mod:`hydrofrac.transfer`) and returns the new problem; otherwise None.
 
     Remeshes happen only when a tip advanced; ``count`` and the "remesh" timer report them.
     ``record``: a JSON file rewritten (on rank 0) after every growth batch with the tip paths,
@@ -309,7 +309,20 @@ class GrowthDriver:
         # later numpy write crashed); the cause inside DOLFINx/petsc4py is not pinned down.
         # A mesh is small next to the fields and operators, which are freed.
         self._old_meshes = []
-        self.solver, self.iface = build(self._polylines())
+        self.problem = self._build()
+
+    def _build(self):
+        problem = self.build(self._polylines())
+        problem.growth = self  # run() remeshes a problem through its driver
+        return problem
+
+    @property
+    def solver(self):
+        return self.problem.solver
+
+    @property
+    def iface(self):
+        return self.problem.interface
 
     def _polylines(self):
         keep = [i for i, p in enumerate(self.paths) if len(p) > 1]
@@ -338,7 +351,8 @@ class GrowthDriver:
                     best, best_s = p + s_ * d, s_
         return best
 
-    def __call__(self, solver):
+    def __call__(self, problem):
+        solver = problem.solver
         if solver.step_count % self.check_every:
             return None
         ready = [len(p) < 2 or segment_damage(self.iface, self.tags[i], p[-2], p[-1]) >= self.ready_damage
@@ -371,20 +385,28 @@ class GrowthDriver:
             return None
         from .transfer import continue_run, transfer_fields, transfer_interface
         try:
-            new_solver, new_iface = self.build(self._polylines())
+            new = self._build()
         except Exception:
             # keep the driver at the last good geometry (the one a checkpoint of the last good
             # state belongs to); the failing geometry is in the exception's message and files
             self.restore_state(before_state)
             raise
         self._old_meshes.append(solver.mesh)
-        transfer_fields(solver, new_solver)
-        continue_run(solver, new_solver)
-        transfer_interface(self.iface, new_iface)
-        self.solver, self.iface = new_solver, new_iface
+        transfer_fields(solver, new.solver)
+        continue_run(solver, new.solver)
+        transfer_interface(self.iface, new.interface)
+        new.after_restore()
+        self.problem = new
         self.count += 1
         self.write()
-        return new_solver
+        return new
+
+    def report(self):
+        """What a summary reports of the growth (its ``accuracy``): remeshes, extensions,
+        joins and the grown length [m]."""
+        return {"remeshes": self.count, "extensions": len(self.events), "joined": len(self.joined),
+                "grown_length": sum(float(np.linalg.norm(np.diff(np.array(p), axis=0), axis=1).sum())
+                                    for p in self.paths)}
 
     def checkpoint_state(self):
         """The geometry state (JSON text): paths, tips, events, joins, remesh count."""
@@ -411,12 +433,12 @@ class GrowthDriver:
         self.count = int(d["count"])
 
     def restart(self, text):
-        """Rebuild the mesh of a checkpoint's geometry state; returns the new solver (at its
+        """Rebuild the mesh of a checkpoint's geometry state; returns the new problem (at its
         initial state: the checkpoint's fields are loaded into it next)."""
         self.restore_state(text)
         self._old_meshes.append(self.solver.mesh)
-        self.solver, self.iface = self.build(self._polylines())
-        return self.solver
+        self.problem = self._build()
+        return self.problem
 
     def write(self, path=None):
         """Write the paths, events and joins as JSON (rank 0) to ``path`` or ``record``."""

@@ -143,8 +143,10 @@ class HydraulicParams:
 
 
 class Hydraulics:
-    """Connect the cracks of an :class:`~hydrofrac.interface.Interface` to a fluid
-    pressure; sets its ``separation_traction`` and updates after every step."""
+    """The hydraulic load on the cracks of an :class:`~hydrofrac.interface.Interface`:
+    network, loaded facets, pressure factor and the separation law of eq. (16)
+    (:meth:`separation_traction`).  A :class:`~hydrofrac.problem.Problem` makes that law the
+    interface's and calls :meth:`update` after every step."""
 
     def __init__(self, iface, params: HydraulicParams):
         self.iface = iface
@@ -169,9 +171,6 @@ class Hydraulics:
         self.fp_q = np.zeros((iface.facets.size, iface.nq))
         self.loaded = np.zeros(iface.facets.size, dtype=bool)
         self.network = np.zeros(iface.facets.size, dtype=bool)
-        self.p_h = params.pressure(iface.solver.t)
-        iface.separation_traction = self.separation_traction
-        iface.hydraulics = self
         self.update()
 
     # ----------------------------------------------------------------- per step
@@ -211,9 +210,6 @@ class Hydraulics:
         """Eq. (16) on loaded facets, S = 0 elsewhere, as the affine law of the interface
         kernel: S^1 = -f_p p_h - (1 - f_p) <-s_B^1> = p_h S0 + cS <-s_B^1>, S^2 = 0."""
         return self._S0_unit, self._cS, self.params.pressure(t)
-
-    def on_step(self, solver):
-        self.update()
 
     # ----------------------------------------------------------------- output
     def fields(self):

@@ -153,14 +153,14 @@ class Interface:
     """Interfacial damage model on the crack facets of a :class:`~hydrofrac.solver.Solver`.
 
     Create the solver with ``crack_facets=crack_facet_indices(...)`` so that the bulk
-    flux skips them; the interface registers itself in ``solver.extensions``.
+    flux skips them; a :class:`~hydrofrac.problem.Problem` (or ``solver.attach``) makes the
+    interface the solver's crack extension.
 
-    ``separation_traction(t) -> (S0, cS[, scale])`` gives the target traction of the
-    separation mode per Gauss point as ``S = scale S0 + cS <-s_B^1> e_n`` (local
-    components; S0 of shape (nf, nq, 2), cS of shape (nf, nq), either may be None = 0;
-    scale defaults to 1).  The default is
-    traction-free cracks (S = 0).  Hydraulic loading (:mod:`hydrofrac.hydraulics`, eq. 16)
-    replaces it.
+    The separation law (:meth:`set_separation_law`) ``law(t) -> (S0, cS[, scale])`` gives the
+    target traction of the separation mode per Gauss point as ``S = scale S0 + cS <-s_B^1> e_n``
+    (local components; S0 of shape (nf, nq, 2), cS of shape (nf, nq), either may be None = 0;
+    scale defaults to 1).  The default is traction-free cracks (S = 0); a problem with a
+    hydraulic load (:mod:`hydrofrac.hydraulics`, eq. 16) sets its law.
     """
 
     def __init__(self, solver, facet_tags, cracks: Sequence[Crack], damage: DamageParams = DamageParams(),
@@ -171,7 +171,6 @@ class Interface:
         self.damage = damage
         self.contact = contact
         self.separation_traction: Optional[Callable] = None
-        self.hydraulics = None  # set by hydrofrac.hydraulics.Hydraulics
         mesh, V = solver.mesh, solver.V
         tdim = mesh.topology.dim
         all_idx = crack_facet_indices(mesh, facet_tags, cracks)
@@ -287,7 +286,6 @@ class Interface:
                                                self._phi[1], self._cells[0], self._cells[1], self._dofs[0],
                                                self._dofs[1])
         self._nb = self._phi[0].shape[2]
-        solver.extensions.append(self)
         self._compile_stage()
         solver.timers.add("setup", time.perf_counter() - t0)
         self.evaluate(solver.x, 0.0, store=True)
@@ -307,6 +305,12 @@ class Interface:
         if self._ghost_flux or self.solver.matfree is None:
             kernels.apply_block_inverse(np.zeros(5), np.zeros(5), self._recv_cells[:0], self._all_dofs,
                                         self.solver.Mref_inv, self.solver.Binv_scaled)
+
+    def set_separation_law(self, law: Optional[Callable]):
+        """The target traction of the separation mode (see the class docstring); None:
+        traction-free."""
+        self.separation_traction = law
+        self._zero_law = None
 
     def _separation(self, t):
         """(S0 (nf, nq, 2), cS (nf, nq), scale) of the separation law
@@ -478,7 +482,6 @@ class Interface:
             "opening": self.state[1], "slip": self.state[2],
             "traction_n": T["s_star"][:, 0].reshape(nf, nq), "traction_t": T["s_star"][:, 1].reshape(nf, nq),
             "mode": np.argmax(frac, axis=1).reshape(nf, nq).astype(np.int32),
-            **(self.hydraulics.fields() if self.hydraulics is not None else {}),
         }
 
     def part(self, extra: Optional[Dict[str, np.ndarray]] = None):
@@ -509,8 +512,6 @@ class Interface:
         self.state = np.array(st["state"])
         self.stage_state = self.state.copy()
         self.min_opening = np.array(st["min_opening"])
-        if self.hydraulics is not None:
-            self.hydraulics.update()  # network and f_p follow from the restored state
 
     # ------------------------------------------------------------------ diagnostics
     def max_penetration(self):

@@ -7,6 +7,7 @@ solutions and the tests (model.md §1).
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, field
 
 
@@ -32,8 +33,9 @@ class Material:
     def __post_init__(self):
         for key in ("E", "nu", "rho"):
             val = getattr(self, key)
-            if not isinstance(val, (int, float)) or not math.isfinite(val):
+            if not isinstance(val, numbers.Real) or isinstance(val, bool) or not math.isfinite(val):
                 raise ValueError(f"material '{self.name}': {key} must be a finite number; got {val!r}")
+            object.__setattr__(self, key, float(val))  # any real type (numpy float32, int64, ...)
         if self.E <= 0:
             raise ValueError(f"material '{self.name}': E must be > 0 (Pa); got {self.E}")
         if not -1.0 < self.nu < 0.5:

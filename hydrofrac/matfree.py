@@ -263,6 +263,29 @@ def facet_nodes(ref, tables, qw):
     return fnodes, np.ascontiguousarray(Mf)
 
 
+#: The forms of :mod:`hydrofrac.forms.elastodynamics` these kernels implement by hand, and the
+#: SHA-256 of their source as the kernels were written for them (:func:`implements_forms`).
+IMPLEMENTED_FORMS = ("fields", "compliance", "impedances", "tangent", "volume", "facet_flux", "bonded_riemann",
+                     "interior_flux", "interior_dissipation")
+IMPLEMENTED_SIGNATURE = "c977edba6d4c1d501ee267d6911edf90357edaf4272b6e65f489a21c1255ed2b"
+
+
+def forms_signature() -> str:
+    """SHA-256 of the source of the forms in :data:`IMPLEMENTED_FORMS`, as they are now."""
+    import hashlib
+    import inspect
+
+    from .forms import elastodynamics as ef
+    text = "\n".join(inspect.getsource(getattr(ef, name)) for name in IMPLEMENTED_FORMS)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def implements_forms() -> bool:
+    """Do the kernels implement the forms the solver is given?  False after an edit of any of
+    :data:`IMPLEMENTED_FORMS` (the solver then assembles the operator from the edited forms)."""
+    return forms_signature() == IMPLEMENTED_SIGNATURE
+
+
 class MatrixFreeOperator:
     """Bulk operator M^{-1}(K_vol + K_int) of a :class:`~hydrofrac.solver.Solver`, applied
     cell by cell (see the module docstring).  ``facets``: local indices of the interior

@@ -175,6 +175,8 @@ class Solver:
     relaxation : dynamic-relaxation damping c [1/s] (rho dv/dt = div sigma - c rho v),
         0 for physical dynamics; only to reach static states quickly (e.g. the
         Sneddon verification).  Its dissipation is reported separately.
+    allow_unstable : accept a ``cfl`` above :data:`CFL_DEFAULT` (stability studies only: the
+        run may blow up, and :meth:`check_stability` stops it)
     operator : "matfree" (default: cell-local compiled kernels for the volume terms and
         the interior upwind flux, :mod:`hydrofrac.matfree`, plus an assembled operator on
         the boundary cells) or "assembled" (the whole A = M^{-1} K as one PETSc BAIJ
@@ -185,7 +187,7 @@ class Solver:
                  cell_tags=None, facet_tags=None, bcs: Sequence[BoundaryCondition] = (),
                  sigma0=((0.0, 0.0), (0.0, 0.0)), cfl: Optional[float] = None, dt: Optional[float] = None,
                  scheme: str = "rk4", crack_facets: Optional[np.ndarray] = None, relaxation: float = 0.0,
-                 operator: str = "matfree"):
+                 operator: str = "matfree", allow_unstable: bool = False):
         t_setup = time.perf_counter()
         self.mesh = mesh
         self.comm = mesh.comm
@@ -193,6 +195,14 @@ class Solver:
             raise ValueError(f"degree p must be an integer in 1..{MAX_DEGREE}; got {degree!r}")
         if operator not in ("matfree", "assembled"):
             raise ValueError(f"operator must be 'matfree' or 'assembled'; got {operator!r}")
+        if operator == "matfree":
+            from .matfree import IMPLEMENTED_FORMS, implements_forms
+            if not implements_forms():
+                operator = "assembled"
+                if self.comm.rank == 0:
+                    print("[hydrofrac] the bulk forms in forms/elastodynamics.py differ from the ones the matrix-free "
+                          f"kernels implement ({', '.join(IMPLEMENTED_FORMS)}): using the operator assembled from "
+                          "the edited forms", flush=True)
         self.operator = operator
         if scheme not in TABLEAUX:
             raise ValueError(f"scheme must be one of {sorted(TABLEAUX)}; got {scheme!r}")
@@ -219,6 +229,10 @@ class Solver:
         self.cfl = CFL_DEFAULT[scheme] if cfl is None else float(cfl)
         if not self.cfl > 0:
             raise ValueError(f"cfl must be > 0; got {cfl}")
+        if self.cfl > CFL_DEFAULT[scheme] * (1 + 1e-12) and not allow_unstable:
+            raise ValueError(f"cfl = {self.cfl:g} is above the documented stable value {CFL_DEFAULT[scheme]} of "
+                             f"{scheme} (CFL_DEFAULT, calibrated in docs/verification.md); use cfl <= "
+                             f"{CFL_DEFAULT[scheme]}, or allow_unstable=True for a stability study")
         self.dt_stable = CFL_DEFAULT[scheme] * self.h_over_c_min / (2 * self.degree + 1)
         if dt is None:
             self.dt = self.cfl * self.h_over_c_min / (2 * self.degree + 1)
@@ -506,7 +520,7 @@ class Solver:
         nd = blocks.shape[1]
         dofs = compat.cell_dofs(self.V)[:nloc]
         own, _, bs, _ = compat.dof_counts(self.V)
-        rstart = self.V.dofmap.index_map.local_range[0] * bs
+        rstart = compat.index_offset(self.V) * bs
         rows = (dofs[:, :, None] * bs + np.arange(bs)).reshape(nloc, nd)  # local dof index per cell
         n = own * bs
         order = np.argsort(rows, axis=None)
@@ -539,6 +553,13 @@ class Solver:
 
     def x_like(self):
         return compat.create_vector(self.V)
+
+    def attach(self, extension):
+        """Make ``extension`` (a crack :class:`~hydrofrac.interface.Interface`) part of the
+        right-hand side and of the RK stages."""
+        if extension in self.extensions:
+            raise ValueError("this extension is already attached to the solver")
+        self.extensions.append(extension)
 
     # ------------------------------------------------------------------ state
     @property
@@ -626,7 +647,7 @@ class Solver:
             self._Xdof = X
             arr = compat.function_array(uext)
             arr[:] = np.asarray(bc.state(X, t)).T.reshape(-1)
-            MB.multAdd(uext.vector, out, out)
+            MB.multAdd(compat.function_vector(uext), out, out)
         self.timers.add("bulk operator", time.perf_counter() - t0)
         if rates is not None:
             for ext in self.extensions:

@@ -156,8 +156,6 @@ def transfer_interface(old, new, tol=1e-9):
     new.state = state
     new.stage_state = state.copy()
     new.min_opening = min_open
-    if new.hydraulics is not None:
-        new.hydraulics.update()
     new.solver.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
     new.evaluate(new.solver.x, new.solver.t, store=True)
     return comm.allreduce(found, op=MPI.SUM)

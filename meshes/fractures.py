@@ -143,6 +143,31 @@ def check_polyline(name, pts, domain: Domain, on_wellbore_start=False):
     return pts
 
 
+def _line_name(tag):
+    for base, name in ((PATH, "path"), (NATURAL, "natural fracture"), (PERFORATION, "perforation")):
+        if tag >= base:
+            return f"{name} {tag - base} (tag {tag})"
+    return f"crack tag {tag}"
+
+
+def check_no_crossings(lines):
+    """Raise ValueError (naming both) if two crack lines cross or overlap: a crack may end
+    on another (a junction), but Gmsh would split a crossed line and lose its tag."""
+    items = list(lines.items())
+    for i, (ta, a) in enumerate(items):
+        for tb, b in items[i + 1:]:
+            for p, q in zip(a[:-1], a[1:]):
+                for r, s_ in zip(b[:-1], b[1:]):
+                    overlap = (abs(np.cross(q - p, s_ - r)) <= 1e-12 * np.linalg.norm(q - p) * np.linalg.norm(s_ - r)
+                               and abs(np.cross(q - p, r - p)) <= 1e-9 * np.linalg.norm(q - p)
+                               and max(np.dot(r - p, q - p), np.dot(s_ - p, q - p)) > 1e-12
+                               and max(np.dot(r - q, p - q), np.dot(s_ - q, p - q)) > 1e-12)
+                    if overlap or _segments_cross(p, q, r, s_):
+                        raise ValueError(f"{_line_name(ta)} and {_line_name(tb)} "
+                                         f"{'overlap' if overlap else 'cross'}; move one of them (cracks may end on "
+                                         "each other, not cross)")
+
+
 def check_domain(d: Domain):
     for k in ("half_width", "half_height", "h_crack", "h_far", "grading", "tip_radius"):
         v = getattr(d, k)
@@ -156,15 +181,10 @@ def check_domain(d: Domain):
         raise ValueError("domain: the wellbore must be smaller than half the box")
 
 
-def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perforation] = (),
-                  fractures: Sequence[Fracture] = (), paths: Sequence[np.ndarray] = (),
-                  out=None, verbose=False, path_tags: Optional[Sequence[int]] = None) -> FractureMesh:
-    """Mesh a box with a wellbore, perforations, natural fractures and potential paths.
-
-    ``paths`` are polylines (k, 2); every line is validated before Gmsh runs.  ``path_tags``
-    (default ``PATH + k``) fixes each path's facet tag, e.g. so that growing cracks keep
-    their tags from one remesh to the next.
-    """
+def check_geometry(domain: Domain, perforations: Sequence[Perforation] = (), fractures: Sequence[Fracture] = (),
+                   paths: Sequence[np.ndarray] = (), path_tags: Optional[Sequence[int]] = None):
+    """Validate a geometry before any meshing; returns its crack lines {tag: points}.
+    Raises ValueError saying what to change."""
     path_tags = [PATH + k for k in range(len(paths))] if path_tags is None else [int(t) for t in path_tags]
     if len(path_tags) != len(paths) or len(set(path_tags)) != len(path_tags):
         raise ValueError(f"path_tags must be {len(paths)} distinct tags; got {path_tags}")
@@ -184,6 +204,21 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
         pts = np.asarray(pth, dtype=float)
         lines[path_tags[k]] = check_polyline(f"potential path {k}", pts, domain,
                                          on_wellbore_start=np.linalg.norm(pts[0]) <= domain.wellbore_radius + 1e-9)
+    check_no_crossings(lines)
+    return lines
+
+
+def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perforation] = (),
+                  fractures: Sequence[Fracture] = (), paths: Sequence[np.ndarray] = (),
+                  out=None, verbose=False, path_tags: Optional[Sequence[int]] = None) -> FractureMesh:
+    """Mesh a box with a wellbore, perforations, natural fractures and potential paths.
+
+    ``paths`` are polylines (k, 2); every line is validated before Gmsh runs.  ``path_tags``
+    (default ``PATH + k``) fixes each path's facet tag, e.g. so that growing cracks keep
+    their tags from one remesh to the next.
+    """
+    path_tags = [PATH + k for k in range(len(paths))] if path_tags is None else [int(t) for t in path_tags]
+    lines = check_geometry(domain, perforations, fractures, paths, path_tags)
     tips = _tips(lines)
 
     def build(model):

@@ -35,10 +35,14 @@ def study_parser(doc):
     return parser
 
 
-def timed_run(solver, t_end, on_step=None):
-    """Step ``solver`` to ``t_end`` with the energy budget and the blow-up check, calling
-    ``on_step(solver)`` after each step; returns the wall time (max over ranks) [s]."""
-    comm = solver.comm
+def timed_run(problem, t_end, monitor=None):
+    """Step ``problem`` (a :class:`~hydrofrac.problem.Problem` or a bare solver) to ``t_end``
+    as :func:`hydrofrac.run.run` does (energy budget, blow-up check, the problem's own
+    updates), without output, calling ``monitor(problem)`` after each step; returns the wall
+    time (max over ranks) [s]."""
+    from hydrofrac.problem import Problem
+    problem = problem if isinstance(problem, Problem) else Problem(problem)
+    solver, comm = problem.solver, problem.comm
     comm.barrier()
     t0 = time.perf_counter()
     solver.update_energy()
@@ -46,8 +50,9 @@ def timed_run(solver, t_end, on_step=None):
         solver.step()
         solver.update_energy()
         solver.check_stability()
-        if on_step is not None:
-            on_step(solver)
+        problem.after_step()
+        if monitor is not None:
+            monitor(problem)
     comm.barrier()
     return comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
 

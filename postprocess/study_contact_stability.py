@@ -25,7 +25,7 @@ into ``postprocess/results`` (``--out``).
 
     python -m hydrofrac.postprocess.study_contact_stability [--quick] [--out DIR]
 
-Expected (and measured, see the README): the penalty's stable step falls like
+Expected (and measured, see docs/benchmarks.md): the penalty's stable step falls like
 Z~/kappa once kappa exceeds ~Z~/dt_CFL while its penetration falls like p/kappa; the
 Riemann contact keeps the bulk CFL step for every delta'_0, with penetration
 |delta'_0| delta~.
@@ -66,6 +66,7 @@ def run_case(mesh, tags, contact: ContactParams, dt_factor: float, degree=2, t_w
                     dt=probe.dt * dt_factor)
     solver.set_initial_state(lambda x: np.vstack([np.where(x[0] < 0, V0, -V0)] + [0 * x[0]] * 4), by_cell=True)
     iface = Interface(solver, tags, cracks, contact=contact)
+    solver.attach(iface)
     comm = solver.comm
     n = comm.allreduce(iface.facets.size * iface.nq, op=MPI.SUM)
     ts, sn = [], []

@@ -59,11 +59,11 @@ def scenes(quick):
     free-growth run before and after growth is graded the same way around the cracks)."""
     ix = scenario("intersection")
     rf = scenario("refracture")
-    yield "intersection, --quick", ix.setup(quick=True, degree=2)[0]
+    yield "intersection, --quick", ix.setup(quick=True, degree=2).solver
     if not quick:
-        yield "intersection, full size", ix.setup(quick=False, degree=2)[0]
-        yield "refracture, full size", rf.setup(quick=False, degree=2)[0]
-    yield "refracture, --quick (p = 1)", rf.setup(quick=True, degree=1)[0]
+        yield "intersection, full size", ix.setup(quick=False, degree=2).solver
+        yield "refracture, full size", rf.setup(quick=False, degree=2).solver
+    yield "refracture, --quick (p = 1)", rf.setup(quick=True, degree=1).solver
 
 
 def main(argv=None):

@@ -38,13 +38,12 @@ def run_case(h_crack, h_far):
     ix = scenario("intersection")
     comm = MPI.COMM_WORLD
     t0 = time.perf_counter()
-    solver, iface, hyd, fm = ix.setup(comm, regularized=True, h_crack=h_crack, h_far=h_far)
+    problem = ix.setup(comm, regularized=True, h_crack=h_crack, h_far=h_far)
+    solver = problem.solver
     setup = time.perf_counter() - t0
-    scene = ix.Scene()
-    scene.set(solver, iface, hyd, fm)
-    mon = ix.Monitor(scene, fm.naturals)
-    wall = timed_run(solver, T_END, mon)
-    acc = mon.accuracy()
+    mon = ix.IntersectionMonitor([c.tag for c in problem.network.cracks if c.kind == "natural"])
+    wall = timed_run(problem, T_END, mon)
+    acc = mon.accuracy(problem)
     return {"cells": solver.num_cells, "dofs": solver.num_dofs, "steps": solver.step_count, "dt": solver.dt,
             "setup_s": setup, "wall_s": wall, "intersection_time": acc["intersection_time"],
             "nf_loaded_length": acc["nf_loaded_length_final"]}

@@ -87,7 +87,7 @@ def run_dg(comm, p, N):
     mesh = solver.mesh
     wall = timed_steps(solver, steps)
     u = compat.function(solver.V)
-    u.vector.array[:] = solver.x.array_r
+    compat.function_vector(u).array[:] = solver.x.array_r
     compat.scatter_forward(u)
     v, sigma = ef.fields(u)
     ve, se = ufl_exact(mesh, solver.t)

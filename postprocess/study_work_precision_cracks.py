@@ -51,10 +51,11 @@ SNEDDON_SIZE, SNEDDON_H_FAR, T_RAMP, RELAXATION, T_END = 8.0, 1.5, 1.0e-3, 1500.
 
 def bars_case(p, nx):
     tb = scenario("two_bars")
-    solver, iface = tb.setup(degree=p, nx=nx)
-    rec = tb.Recorder(iface)
-    wall = timed_run(solver, 0.75e-3, rec)
-    acc = tb.accuracy(solver, iface, rec, 1.0, 1.0)
+    problem = tb.setup(degree=p, nx=nx)
+    solver = problem.solver
+    rec = tb.Recorder()
+    wall = timed_run(problem, 0.75e-3, rec)
+    acc = rec.accuracy(problem)
     return {"method": f"DG P{p}", "family": "DG", "p": p, "size": nx, "dofs": solver.num_dofs,
             "steps": solver.step_count, "wall_s": wall, "stress_rel_error": acc["contact_stress_rel_error"],
             "duration_error_us": abs(acc["duration"] - acc["duration_exact"]) * 1e6,
@@ -109,10 +110,11 @@ def cg_bars_case(k, nx, L=1.0, v0=1.0, t_end=0.75e-3):
 
 def sneddon_case(p, h):
     sn = scenario("sneddon")
-    solver, iface, hyd = sn.setup(degree=p, a=1.0, dp=1.0e6, size=SNEDDON_SIZE, h_crack=h, h_far=SNEDDON_H_FAR,
-                                  t_ramp=T_RAMP, relaxation=RELAXATION)
-    wall = timed_run(solver, T_END, hyd.on_step)
-    acc = sn.opening_error(solver, iface, 1.0, 1.0e6)
+    problem = sn.setup(degree=p, a=1.0, dp=1.0e6, size=SNEDDON_SIZE, h_crack=h, h_far=SNEDDON_H_FAR,
+                       t_ramp=T_RAMP, relaxation=RELAXATION)
+    solver = problem.solver
+    wall = timed_run(problem, T_END)
+    acc = sn.opening_error(solver, problem.interface, 1.0, 1.0e6)
     return {"method": f"DG P{p}", "family": "DG", "p": p, "size": h, "dofs": solver.num_dofs,
             "steps": solver.step_count, "wall_s": wall, "opening_rel_error": acc["opening_L2_rel_error"]}
 

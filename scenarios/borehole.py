@@ -35,10 +35,11 @@ import numpy as np
 import ufl
 from mpi4py import MPI
 
-from hydrofrac import CONFINEMENT, ROCK, compat
+from hydrofrac import CONFINEMENT, ROCK, cli, compat
 from hydrofrac.boundary import Absorbing, PiecewiseLinear, Symmetry, Traction
 from hydrofrac.meshes import borehole as bh
-from hydrofrac.run import RunOptions, run, scenario_parser
+from hydrofrac.problem import Problem
+from hydrofrac.run import Monitor, run
 from hydrofrac.solver import Solver
 # -
 
@@ -112,19 +113,24 @@ def ring_errors(solver: Solver, a: float, p: float, p0: float, r_out: float):
 # left is mostly the discretisation (13 straight edges per quarter of the hole),
 # not the transient.
 
-def accuracy_report(a: float, pressure: PiecewiseLinear):
-    def report(solver: Solver):
+class LameReport(Monitor):
+    """The Lamé comparison at the end time (and the energy balance)."""
+
+    def __init__(self, a: float, pressure: PiecewiseLinear):
+        self.a, self.pressure = a, pressure
+
+    def accuracy(self, problem):
+        solver, a = problem.solver, self.a
         settle = SETTLE * a / ROCK.cs
         out = {"energy_balance_relative_error": solver.energy.as_dict()["balance_error_relative"]}
         if solver.t < settle:
             out["lame_ring"] = (f"not compared: t_end = {solver.t:.3g} s is shorter than "
                                 f"{SETTLE:g} a/c_s = {settle:.3g} s")
             return out
-        err_rr, err_tt = ring_errors(solver, a, pressure(solver.t), CONFINEMENT, 2 * a)
+        err_rr, err_tt = ring_errors(solver, a, self.pressure(solver.t), CONFINEMENT, 2 * a)
         out["lame_ring_rel_L2_error_srr"] = err_rr
         out["lame_ring_rel_L2_error_stt"] = err_tt
         return out
-    return report
 
 
 # ## Mesh, loads and boundary conditions
@@ -134,18 +140,23 @@ def accuracy_report(a: float, pressure: PiecewiseLinear):
 # the total stress: the initial state is σ0 at rest, the borehole wall carries the
 # traction −p(t) n, and the outer boundary absorbs outgoing waves relative to σ0.
 
-def setup(comm, size: str, degree=None, full=False, out=None):
+def pressure_history():
+    """p0 -> P_FINAL over RAMP seconds, then held."""
+    return PiecewiseLinear((0.0, RAMP), (CONFINEMENT, P_FINAL))
+
+
+def setup(comm, size: str, degree=None, full=False, out=None) -> Problem:
     h_hole, growth, p_default, _ = SIZES[size]
     mesh, cell_tags, facet_tags = bh.borehole_mesh(comm, a=A, R=R, h_hole=h_hole, growth=growth,
                                                    quarter=not full, out=out)
     sigma0 = -CONFINEMENT * np.eye(2)
-    pressure = PiecewiseLinear((0.0, RAMP), (CONFINEMENT, P_FINAL))
+    pressure = pressure_history()
     bcs = [Traction(bh.BOREHOLE, pressure=pressure), Absorbing(bh.OUTER, stress=sigma0)]
     if not full:
         bcs += [Symmetry(bh.SYMMETRY_X), Symmetry(bh.SYMMETRY_Y)]
     solver = Solver(mesh, p_default if degree is None else degree, ROCK, facet_tags=facet_tags, bcs=bcs,
                     sigma0=sigma0)
-    return solver, pressure
+    return Problem(solver, facet_tags=facet_tags)
 
 
 # ## Picture
@@ -168,17 +179,14 @@ def render_png(pvd: Path, png: Path):
 
 
 def main(argv=None):
-    parser = scenario_parser("Pressurised borehole in confined rock (hydrofrac scenario)")
+    parser = cli.scenario_parser("Pressurised borehole in confined rock (hydrofrac scenario)")
     parser.add_argument("--full", action="store_true", help="mesh the whole square, not a quarter")
-    args = parser.parse_args(argv)
+    args = cli.parse(parser, argv, name="borehole", degree=(SIZES["default"][2], SIZES["quick"][2]),
+                     t_end=(SIZES["default"][3], SIZES["quick"][3]), frames=(25, 5))
     comm = MPI.COMM_WORLD
-    size = "quick" if args.quick else "default"
-    out = Path(args.out or "results/borehole")
-    t_end = args.t_end or SIZES[size][3]
-    solver, pressure = setup(comm, size, degree=args.degree, full=args.full, out=out)
-    frames = args.frames or (5 if args.quick else 25)
-    options = RunOptions(t_end=t_end, out=str(out), frames=frames, restart=args.restart)
-    summary = run(solver, options, name="borehole", accuracy=accuracy_report(A, pressure))
+    out = Path(args.out)
+    problem = setup(comm, "quick" if args.quick else "default", degree=args.degree, full=args.full, out=out)
+    summary = run(problem, cli.run_options(args), name="borehole", monitors=[LameReport(A, pressure_history())])
     if comm.rank == 0:
         png = render_png(Path(summary["output"]["paraview"]), out / "borehole.png")
         if png is not None:

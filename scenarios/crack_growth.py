@@ -27,12 +27,15 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from hydrofrac import ROCK
+from hydrofrac import ROCK, cli
 from hydrofrac.boundary import Absorbing
 from hydrofrac.growth import GrowthDriver, GrowthParams, Tip
 from hydrofrac.interface import Crack, DamageParams, Interface, crack_facet_indices
 from hydrofrac.meshes.fractures import NATURAL, OUTER, PATH, Domain, Fracture, fracture_mesh
-from hydrofrac.run import RunOptions, log, run, scenario_parser
+from hydrofrac.network import CrackLine, CrackNetwork
+from hydrofrac.problem import Problem
+from hydrofrac.run import Monitor, RunOptions, log
+from hydrofrac.run import run as run_problem
 from hydrofrac.solver import Solver
 
 A, SIGMA = 1.0, 1.0e6
@@ -40,7 +43,7 @@ DAMAGE = DamageParams()  # s_ = 1 MPa, s̄ = 2 MPa, τ̃ = 30 µs
 
 
 def make_builder(comm, angle, h, half, degree):
-    """build(paths, tags) -> (solver, interface) for this scene."""
+    """build((paths, tags)) -> Problem for this scene."""
     s0 = np.array([[0.0, 0.0], [0.0, SIGMA]])
     dom = Domain(half_width=half, half_height=half, wellbore_radius=0.0, h_crack=h, h_far=1.5, grading=2.0)
 
@@ -52,47 +55,60 @@ def make_builder(comm, angle, h, half, degree):
         solver = Solver(fm.mesh, degree, ROCK, facet_tags=fm.facet_tags, sigma0=s0,
                         bcs=[Absorbing(OUTER, stress=s0)],
                         crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks), relaxation=1500.0)
-        return solver, Interface(solver, fm.facet_tags, cracks, damage=DAMAGE)
+        lines = [CrackLine(t, "natural" if t == NATURAL else "path", pts) for t, pts in fm.lines.items()]
+        return Problem(solver, Interface(solver, fm.facet_tags, cracks, damage=DAMAGE),
+                       network=CrackNetwork.from_cracks(lines, growing=fm.paths), facet_tags=fm.facet_tags)
     return build
 
 
-def main(argv=None):
-    parser = scenario_parser("Free crack growth with remeshing: an inclined crack in tension")
-    parser.add_argument("--angle", type=float, default=30.0, help="crack inclination to the x axis [deg]")
-    args = parser.parse_args(argv)
-    comm = MPI.COMM_WORLD
-    h, half = (0.1, 4.0) if args.quick else (0.05, 8.0)
-    a = math.radians(args.angle)
+def setup(comm=MPI.COMM_WORLD, angle=30.0, quick=False, degree=2, record=None) -> Problem:
+    """The first problem; ``problem.growth`` is the driver that grows both tips."""
+    h, half = (0.1, 4.0) if quick else (0.05, 8.0)
+    a = math.radians(angle)
     d = np.array([math.cos(a), math.sin(a)])
     tips = [Tip(A * d, d.copy()), Tip(-A * d, -d.copy())]
     margin = half - 2 * h
-    driver = GrowthDriver(make_builder(comm, args.angle, h, half, args.degree or 2), tips,
+    driver = GrowthDriver(make_builder(comm, angle, h, half, degree), tips,
                           GrowthParams(r=4 * h), da=2 * h, threshold=DAMAGE.s_onset, tags=[PATH, PATH + 1],
-                          inside=lambda p: abs(p[0]) < margin and abs(p[1]) < margin, domain_size=2 * half)
+                          inside=lambda p: abs(p[0]) < margin and abs(p[1]) < margin, domain_size=2 * half,
+                          record=record)
+    return driver.problem
 
-    def history():
-        length = sum(float(np.linalg.norm(np.diff(np.array(p), axis=0), axis=1).sum()) for p in driver.paths)
-        return {"grown_length": length, "remeshes": driver.count}
 
-    def accuracy(solver):
-        out = {"remeshes": driver.count, "extensions": len(driver.events)}
+class KinkMonitor(Monitor):
+    """The grown length in the history; the first kink angle and grown length per tip."""
+
+    def history(self, problem):
+        g = problem.growth
+        return {"grown_length": g.report()["grown_length"], "remeshes": g.count}
+
+    def accuracy(self, problem):
+        g, out = problem.growth, {}
         for i in range(2):
-            ang = [e[2] for e in driver.events if e[1] == i]
+            ang = [e[2] for e in g.events if e[1] == i]
             if ang:
                 out[f"tip{i}_first_kink_deg"] = ang[0]
-                p = np.array(driver.paths[i])
+                p = np.array(g.paths[i])
                 out[f"tip{i}_grown_m"] = float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
         return out
 
-    opts = RunOptions(t_end=args.t_end or (1.5e-3 if args.quick else 3.0e-3), out=args.out or "results/crack_growth",
-                      frames=args.frames or 30, restart=args.restart)
-    driver.record = Path(opts.out) / "growth.json"  # the grown paths, written as they grow
-    summary = run(driver.solver, opts, name="crack_growth", extra_parts=lambda: driver.iface.part(),
-                  history_extra=history, accuracy=accuracy, remesh=driver)
+
+def run(problem, options: RunOptions):
+    """Run with the kink measurements."""
+    summary = run_problem(problem, options, name="crack_growth", monitors=[KinkMonitor()])
     acc = summary["accuracy"]
-    log(comm, f"[crack_growth] {acc['extensions']} extensions in {acc['remeshes']} remeshes; first kink "
-              f"{acc.get('tip0_first_kink_deg', float('nan')):.1f}° / {acc.get('tip1_first_kink_deg', float('nan')):.1f}°")
+    log(problem.comm, f"[crack_growth] {acc['extensions']} extensions in {acc['remeshes']} remeshes; first kink "
+                      f"{acc.get('tip0_first_kink_deg', float('nan')):.1f}° / "
+                      f"{acc.get('tip1_first_kink_deg', float('nan')):.1f}°")
     return summary
+
+
+def main(argv=None):
+    parser = cli.scenario_parser("Free crack growth with remeshing: an inclined crack in tension")
+    parser.add_argument("--angle", type=float, default=30.0, help="crack inclination to the x axis [deg]")
+    args = cli.parse(parser, argv, name="crack_growth", degree=2, t_end=(3.0e-3, 1.5e-3), frames=30)
+    problem = setup(angle=args.angle, quick=args.quick, degree=args.degree, record=Path(args.out) / "growth.json")
+    return run(problem, options=cli.run_options(args))
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@
 #   the aperture, so the load enters at the junction and spreads along the
 #   natural fracture as it opens.
 #
-# Geometry [our choice, documented in the README]: wellbore radius 0.1 m,
+# Geometry [our choice, docs/model.md §7]: wellbore radius 0.1 m,
 # perforations 0.3 m long, the natural fracture at x = `--x-nf`; the default distance makes the intersection happen
 # at roughly the paper's time (~800 µs) with τ̃ = 30 µs on the intact paths.
 # The natural fracture has its own τ̃ = 1 ms (`--nf-tau`): it is already debonded,
@@ -37,11 +37,12 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from hydrofrac import CONFINEMENT, wellbore
+from hydrofrac import CONFINEMENT, cli, wellbore
 from hydrofrac.boundary import PiecewiseLinear
 from hydrofrac.interface import DamageParams
 from hydrofrac.meshes.fractures import Domain, Fracture, Perforation
-from hydrofrac.run import RunOptions, log, run, scenario_parser
+from hydrofrac.run import Monitor, RunOptions, log
+from hydrofrac.run import run as run_problem
 
 P_PEAK = 19.4e6
 PERF_ANGLES = (0.0, 90.0, 180.0, 270.0)
@@ -71,52 +72,49 @@ def geometry(x_nf=1.2, nf_length=1.6, perf_length=0.3, path_length=0.6, quick=Fa
     return dom, perfs, [nf], paths
 
 
-def setup(comm=MPI.COMM_WORLD, regularized=True, degree=2, quick=False, x_nf=1.2, tau=30e-6, delta_bar=0.1,
-          nf_tau=1e-3, h_crack=None, h_far=None):
+def description(regularized=True, degree=2, quick=False, x_nf=1.2, tau=30e-6, delta_bar=0.1, nf_tau=1e-3,
+                h_crack=None, h_far=None, growth=None) -> wellbore.Wellbore:
+    """The problem as data: ``growth`` (a :class:`hydrofrac.wellbore.Growth`) grows the cracks
+    freely; None grows them along the pre-meshed potential paths."""
     dom, perfs, nfs, paths = geometry(x_nf=x_nf, quick=quick, nf_tau=nf_tau, h_crack=h_crack, h_far=h_far)
-    return wellbore.build(comm, dom, perfs, nfs, paths, pressure=pressure_history(), regularized=regularized,
-                          degree=degree, damage=DamageParams(tau=tau), delta_bar=delta_bar)
+    return wellbore.Wellbore(dom, perfs, pressure_history(), fractures=nfs, paths=() if growth else paths,
+                             regularized=regularized, degree=degree, damage=DamageParams(tau=tau),
+                             delta_bar=delta_bar, growth=growth)
+
+
+def setup(comm=MPI.COMM_WORLD, record=None, **params):
+    """The built problem (``problem.growth`` is its growth driver, if it grows freely)."""
+    return wellbore.setup(description(**params), comm, record=record)[0]
 
 
 # ## What we watch
 # After every step: is the natural fracture loaded (intersection time), how much
 # of it carries load (f_p-weighted length), and, more than 0.25 m away from the
 # junction, the peak particle velocity of its faces (|v*±|) and the peak opening
-# rate (normal velocity jump).
-class Scene:
-    """The current mesh's objects (replaced when a growing crack remeshes)."""
+# rate (normal velocity jump).  The monitor receives the current problem (a remesh
+# replaces it), and its record goes into the checkpoints.
+class IntersectionMonitor(Monitor):
+    checkpointed = ("t_intersection", "rows", "nf_length")
 
-    def set(self, solver, iface, hyd, fm):
-        self.solver, self.iface, self.hyd, self.fm = solver, iface, hyd, fm
-
-
-class Monitor:
-    def __init__(self, scene, nf_tags):
-        self.scene, self.nf_tags = scene, list(nf_tags)
-        iface = scene.iface
-        on_nf = np.isin(iface.crack_tag, self.nf_tags)
-        self.nf_length = scene.solver.comm.allreduce(float(iface.weights[on_nf].sum()), op=MPI.SUM)
+    def __init__(self, nf_tags):
+        self.nf_tags = list(nf_tags)
+        self.nf_length = None
         self.t_intersection = None
         self.far = 0.25  # m from the junction for the velocity-spike measure
         self.rows = []
 
-    @property
-    def hyd(self):
-        return self.scene.hyd
-
-    def __call__(self, solver):
-        iface, hyd = self.scene.iface, self.scene.hyd
-        hyd.on_step(solver)
-        comm = solver.comm
+    def __call__(self, problem):
+        iface, hyd, comm = problem.interface, problem.hydraulics, problem.comm
         nf = np.isin(iface.crack_tag, self.nf_tags)
+        if self.nf_length is None:
+            self.nf_length = comm.allreduce(float(iface.weights[nf].sum()), op=MPI.SUM)
         loaded_nf = comm.allreduce(bool(hyd.loaded[nf].any()), op=MPI.LOR)
         if loaded_nf and self.t_intersection is None:
-            self.t_intersection = solver.t
+            self.t_intersection = problem.t
         T = iface.last
-        nq = iface.nq
         # away from the junction (y = 0): the unregularised load hits the whole fracture at once
         far = np.abs(iface.points[..., 1]).reshape(-1) > self.far
-        sel = np.repeat(nf, nq) & far
+        sel = np.repeat(nf, iface.nq) & far
         peaks = np.zeros(2)
         if sel.any():
             # opening rate [[v*^1]] = v*- - v*+ and particle speed of either face
@@ -126,14 +124,14 @@ class Monitor:
         comm.Allreduce(MPI.IN_PLACE, peaks, op=MPI.MAX)
         lf = comm.allreduce(float((hyd.fp_q[nf] * iface.weights[nf]).sum()), op=MPI.SUM)
         net = comm.allreduce(float((hyd.network[:, None] * iface.weights).sum()), op=MPI.SUM)
-        self.rows.append((solver.t, lf, peaks[0], net, peaks[1]))
+        self.rows.append((problem.t, lf, peaks[0], net, peaks[1]))
 
-    def history(self):
-        t, lf, vmax, net, vpart = self.rows[-1] if self.rows else (self.scene.solver.t, 0.0, 0.0, 0.0, 0.0)
-        return {"p_h": self.hyd.params.pressure(t), "nf_loaded_length": lf, "nf_peak_opening_rate": vmax,
+    def history(self, problem):
+        t, lf, vmax, net, vpart = self.rows[-1] if self.rows else (problem.t, 0.0, 0.0, 0.0, 0.0)
+        return {"p_h": problem.hydraulics.params.pressure(t), "nf_loaded_length": lf, "nf_peak_opening_rate": vmax,
                 "nf_peak_velocity": vpart, "network_length": net}
 
-    def accuracy(self):
+    def accuracy(self, problem):
         rows = np.array(self.rows)
         out = {"intersection_time": self.t_intersection if self.t_intersection is not None else float("nan"),
                "nf_length": self.nf_length, "nf_loaded_length_final": float(rows[-1, 1])}
@@ -141,7 +139,7 @@ class Monitor:
             win = (rows[:, 0] >= self.t_intersection) & (rows[:, 0] <= self.t_intersection + 50e-6)
             out["nf_peak_opening_rate_50us"] = float(rows[win, 2].max())
             out["nf_peak_velocity_50us"] = float(rows[win, 4].max())
-            out["p_h_at_intersection"] = self.hyd.params.pressure(self.t_intersection)
+            out["p_h_at_intersection"] = problem.hydraulics.params.pressure(self.t_intersection)
             half = rows[:, 1] >= 0.5 * self.nf_length
             out["nf_half_loaded_after"] = (float(rows[np.argmax(half), 0] - self.t_intersection) if half.any()
                                            else float("nan"))
@@ -159,39 +157,35 @@ class Monitor:
 # singular near-tip field, with K_II/K_I from the crack's own opening and slip within r
 # behind the tip (displacement correlation), under-relaxed by a factor 0.5
 # (``--growth-cod-relax``).  Why not the angle of the sampled s̆: the tensile zone ahead of
-# a tip running at ~0.7 c_s is narrower than 2h in the converged solution (README), so the
+# a tip running at ~0.7 c_s is narrower than 2h in the converged solution (docs/studies/growth.md), so the
 # sampled maximum moves off-axis and the cracks kink by 35-60° within 0.5 m.  Why the 0.5:
 # with the full angle the paths stay radial to ~1 m and then zigzag with growing amplitude
 # (a kink puts slip of the other sign into the next window: the correction overshoots by
 # more than 2×); with half of it every segment of the full-size run stays within 2° of
-# radial to 1 ms (measured; README).  A relaxed angle still turns a crack fully towards
+# radial to 1 ms (measured; docs/studies/growth.md).  A relaxed angle still turns a crack fully towards
 # K_II = 0, over two or three extensions instead of one.
 # The sampled criterion uses the tensile normal traction only (β = 0, `--growth-beta`):
 # with the damage law's β = 1 the shear of the compressive pressure waves around the
 # perforations (|τ| of several MPa where σ_n ≈ −15 MPa) outweighs the narrow tensile zone
 # ahead of the tips in the first 100-200 µs, and the onset is reached too early.
-def growth_driver(scene, regularized, degree, args):
-    from hydrofrac.meshes.fractures import fracture_points
-    comm = MPI.COMM_WORLD
-    dom, perfs, nfs, _ = geometry(x_nf=args.x_nf, quick=args.quick, nf_tau=args.nf_tau, h_crack=args.h_crack,
-                                  h_far=args.h_far)
-    damage = DamageParams(tau=args.tau)
 
-    def build(polylines):
-        paths, tags = polylines
-        solver, iface, hyd, fm = wellbore.build(comm, dom, perfs, nfs, paths, pressure=pressure_history(),
-                                                regularized=regularized, degree=degree, damage=damage,
-                                                delta_bar=0.1, path_tags=tags)
-        scene.set(solver, iface, hyd, fm)
-        return solver, iface
 
-    return wellbore.growth_driver(build, dom, perfs, damage, args, obstacles=[fracture_points(nf) for nf in nfs])
+def run(problem, options: RunOptions, name="intersection_regularized"):
+    """Run ``problem`` with the intersection monitor; returns the summary (fields:
+    ``problem.solver.x``)."""
+    mon = IntersectionMonitor([c.tag for c in problem.network.cracks if c.kind == "natural"])
+    summary = run_problem(problem, options, name=name, monitors=[mon])
+    acc = summary["accuracy"]
+    log(problem.comm, f"[{name}] intersection at t = {acc['intersection_time'] * 1e6:.1f} µs; loaded length of "
+                      f"the natural fracture at the end {acc['nf_loaded_length_final']:.3f} m of "
+                      f"{acc['nf_length']:.3f} m")
+    return summary
 
 
 def main(argv=None, regularized=None):
-    parser = scenario_parser("Hydraulic fracture intersecting a natural fracture (paper §3.1)")
+    parser = cli.scenario_parser("Hydraulic fracture intersecting a natural fracture (paper §3.1)")
     g = parser.add_mutually_exclusive_group()
-    g.add_argument("--regularized", dest="reg", action="store_true", default=True,
+    g.add_argument("--regularized", dest="reg", action="store_true", default=None,
                    help="aperture-based pressure factor, delta_bar' = 0.1 (default)")
     g.add_argument("--unregularized", dest="reg", action="store_false", help="f_p = 1 at connection")
     parser.add_argument("--x-nf", type=float, default=1.2, help="x position of the natural fracture [m]")
@@ -207,44 +201,34 @@ def main(argv=None, regularized=None):
                         help="mesh size at the cracks [m] (default 0.03, --quick 0.06; Δa and r scale with it)")
     parser.add_argument("--h-far", type=float, default=None,
                         help="mesh size far from the cracks [m] (default 0.5, --quick 0.8)")
-    wellbore.add_growth_arguments(parser)
-    args = parser.parse_args(argv)
-    wellbore.check_growth_arguments(parser, args)
-    for name in ("h_crack", "h_far"):
-        v = getattr(args, name)
-        if v is not None and not 0 < v < 1.0:
-            parser.error(f"--{name.replace('_', '-')} must be in (0, 1) m; got {v}")
-    reg = args.reg if regularized is None else regularized
-    name = "intersection_regularized" if reg else "intersection_unregularized"
-    degree = args.degree or 2
-    scene, driver = Scene(), None
-    if not args.growth:
-        scene.set(*setup(regularized=reg, degree=degree, quick=args.quick, x_nf=args.x_nf, tau=args.tau,
-                         nf_tau=args.nf_tau, h_crack=args.h_crack, h_far=args.h_far))
+    cli.add_growth_arguments(parser)
     # The freely grown crack reaches the natural fracture at ~820 µs (full size; ~920 µs at
     # --quick, Δa = 12 cm) and loads it from ~880 µs: 1.2 ms shows the load front cross the
     # natural fracture (paper fig. 8-9); --quick's 1.1 ms leaves the 50 µs after the
     # intersection that the accuracy measures
-    t_end = args.t_end or (1.2e-3 if not args.quick else 1.1e-3)
-    opts = RunOptions(t_end=t_end, out=args.out or f"results/{name}", frames=args.frames or 40,
-                      restart=args.restart, history_every=1)
-    if args.growth:
-        driver = growth_driver(scene, reg, degree, args)
-        driver.record = Path(opts.out) / "growth.json"  # the grown paths, written as they grow
-    mon = Monitor(scene, scene.fm.naturals)
+    def name_of(args):
+        reg = regularized if regularized is not None else args.reg is not False
+        return "intersection_regularized" if reg else "intersection_unregularized"
 
-    def accuracy(s):
-        acc = mon.accuracy()
-        if driver is not None:
-            acc.update(remeshes=driver.count, extensions=len(driver.events), joined=len(driver.joined))
-        return acc
-    summary = run(scene.solver, opts, name=name, extra_parts=lambda: scene.iface.part(), on_step=mon,
-                  history_extra=mon.history, accuracy=accuracy, remesh=driver)
-    acc = summary["accuracy"]
-    log(scene.solver.comm, f"[{name}] intersection at t = {acc['intersection_time'] * 1e6:.1f} µs; "
-                     f"loaded length of the natural fracture at the end {acc['nf_loaded_length_final']:.3f} m "
-                     f"of {acc['nf_length']:.3f} m")
-    return summary
+    args = cli.parse(parser, argv, name=name_of, degree=2, t_end=(1.2e-3, 1.1e-3), frames=40)
+    if regularized is not None and args.reg is not None and args.reg != regularized:
+        parser.error(f"this script runs the {name_of(args)} problem; run scenarios/intersection.py "
+                     f"--{'regularized' if args.reg else 'unregularized'} for the other one")
+    name = name_of(args)
+    reg = args.reg = name == "intersection_regularized"
+    cli.check_growth_arguments(parser, args)
+    for key in ("h_crack", "h_far"):
+        v = getattr(args, key)
+        if v is not None and not 0 < v < 1.0:
+            parser.error(f"--{key.replace('_', '-')} must be in (0, 1) m; got {v}")
+    params = dict(regularized=reg, degree=args.degree, quick=args.quick, x_nf=args.x_nf, tau=args.tau,
+                  nf_tau=args.nf_tau, h_crack=args.h_crack, h_far=args.h_far, growth=wellbore.Growth.from_args(args))
+    try:
+        description(**params)  # the geometry is checked before anything is meshed
+    except ValueError as err:
+        parser.error(str(err))
+    problem = setup(record=Path(args.out) / "growth.json", **params)
+    return run(problem, cli.run_options(args), name=name)
 
 
 if __name__ == "__main__":

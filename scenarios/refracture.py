@@ -14,7 +14,7 @@
 # scenario's driver and criterion: `hydrofrac.wellbore.growth_driver`), out to the extent of
 # the pre-meshed problem (`--growth-max-radius`, default 2.9 m, `--quick` 0.65 m): without a
 # limit they run to the outer boundary while the load is held and then do not close in the
-# off period (README).  `--premeshed` grows them along radial potential paths (bonded
+# off period (docs/studies/scenarios.md).  `--premeshed` grows them along radial potential paths (bonded
 # interfaces, D = 0) of that extent instead.
 #
 #     mpirun -n 2 python scenarios/refracture.py [--quick] [--premeshed] [--out DIR]
@@ -25,12 +25,13 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from hydrofrac import CONFINEMENT, wellbore
+from hydrofrac import CONFINEMENT, cli, wellbore
 from hydrofrac.boundary import PiecewiseLinear
 from hydrofrac.hydraulics import network_distance
 from hydrofrac.interface import MODE_SEPARATED, DamageParams
 from hydrofrac.meshes.fractures import Domain, Perforation
-from hydrofrac.run import RunOptions, log, run, scenario_parser
+from hydrofrac.run import Monitor, RunOptions, log
+from hydrofrac.run import run as run_problem
 
 P_PEAK = 19.4e6
 ANGLES = (0.0, 90.0, 180.0, 270.0)
@@ -56,42 +57,23 @@ def geometry(quick=False):
     return dom, perfs, [2.5] * 4, load_history()
 
 
-def setup(comm=MPI.COMM_WORLD, quick=False, degree=2, tau=30e-6):
-    """The pre-meshed problem: solver, interface, hydraulics and (t_off, t_on, t_end)."""
-    dom, perfs, lengths, (pressure, t_off, t_on, t_end) = geometry(quick)
+def description(quick=False, degree=2, tau=30e-6, growth=None) -> wellbore.Wellbore:
+    """The problem as data.  Free growth (``growth``) stops, unless told otherwise, at the
+    extent of the pre-meshed paths: without a limit the cracks run to the outer boundary
+    while the load is held, and then do not close in the off period
+    (docs/studies/scenarios.md)."""
+    dom, perfs, lengths, (pressure, _, _, _) = geometry(quick)
     paths = wellbore.radial_paths(dom, perfs, lengths)
-    solver, iface, hyd, fm = wellbore.build(comm, dom, perfs, (), paths, pressure=pressure, regularized=True,
-                                            degree=degree, damage=DamageParams(tau=tau))
-    return solver, iface, hyd, (t_off, t_on, t_end)
+    if growth is not None and growth.max_radius is None:
+        from dataclasses import replace
+        growth = replace(growth, max_radius=dom.wellbore_radius + perfs[0].length + lengths[0])
+    return wellbore.Wellbore(dom, perfs, pressure, paths=() if growth else paths, regularized=True, degree=degree,
+                             damage=DamageParams(tau=tau), growth=growth)
 
 
-def growth_setup(args, degree, comm=MPI.COMM_WORLD):
-    """The free-growth problem: a scene whose solver, interface and hydraulics the driver
-    replaces at every remesh, the driver, and (t_off, t_on, t_end)."""
-    dom, perfs, lengths, (pressure, t_off, t_on, t_end) = geometry(args.quick)
-    damage = DamageParams(tau=args.tau)
-    scene = Scene()
-    if args.growth_max_radius is None:
-        # the cracks' extent of the pre-meshed problem: without a limit they run to the outer
-        # boundary while the load is held, and then do not close in the off period (README)
-        args.growth_max_radius = dom.wellbore_radius + perfs[0].length + lengths[0]
-
-    def build(polylines):
-        paths, tags = polylines
-        solver, iface, hyd, fm = wellbore.build(comm, dom, perfs, (), paths, pressure=pressure, regularized=True,
-                                                degree=degree, damage=damage, path_tags=tags)
-        scene.set(solver, iface, hyd)
-        return solver, iface
-
-    driver = wellbore.growth_driver(build, dom, perfs, damage, args)
-    return scene, driver, (t_off, t_on, t_end)
-
-
-class Scene:
-    """The current mesh's solver, interface and hydraulics (replaced at every remesh)."""
-
-    def set(self, solver, iface, hyd):
-        self.solver, self.iface, self.hyd = solver, iface, hyd
+def setup(comm=MPI.COMM_WORLD, record=None, **params):
+    """The built problem (``problem.growth`` is its growth driver, if it grows freely)."""
+    return wellbore.setup(description(**params), comm, record=record)[0]
 
 
 # ## What we watch
@@ -100,63 +82,49 @@ class Scene:
 # * after re-loading: when each network facet that had unloaded (f_p ≤ 0.5 when the
 #   load returns) first reaches f_p > 0.5, and its distance along the network from
 #   the perforations.
-class Monitor:
-    def __init__(self, scene, t_off, t_on):
-        self.scene, self.iface = scene, scene.iface
+class RefractureMonitor(Monitor):
+    checkpointed = ("t_reach", "still_loaded", "energy_after_off", "sep_fraction")
+
+    def __init__(self, t_off, t_on):
         self.t_off, self.t_on = t_off, t_on
-        nf = self.iface.facets.size
-        self.t_reach = np.full(nf, np.inf)
+        self.t_reach = None
         self.still_loaded = None  # facets with f_p > 0.5 when the load returns (never unloaded)
         self.energy_after_off = []
         self.sep_fraction = []
 
-    @property
-    def s(self):
-        return self.scene.solver
-
-    @property
-    def hyd(self):
-        return self.scene.hyd
-
-    def _follow_remesh(self):
-        """After a remesh, carry the per-facet record (re-load time, loaded when the load
-        returned) to the new crack facets: from the old facet whose midpoint is nearest, if
-        it lies within half a facet length (a facet of a new segment has no record)."""
-        old, new = self.iface, self.scene.iface
-        comm = self.s.comm
+    def remeshed(self, old, new):
+        """Carry the per-facet record (re-load time, loaded when the load returned) to the new
+        crack facets: from the old facet whose midpoint is nearest, if it lies within half a
+        facet length (a facet of a new segment has no record)."""
+        old_if, new_if, comm = old.interface, new.interface, new.comm
         mid = lambda f: 0.5 * (f.va + f.vb)  # noqa: E731
-        still = self.still_loaded if self.still_loaded is not None else np.zeros(old.facets.size, bool)
-        parts = comm.allgather((mid(old), self.t_reach, still))
+        still = self.still_loaded if self.still_loaded is not None else np.zeros(old_if.facets.size, bool)
+        parts = comm.allgather((mid(old_if), self.t_reach, still))
         P = np.concatenate([p[0] for p in parts]).reshape(-1, 2)
         T = np.concatenate([p[1] for p in parts])
         K = np.concatenate([p[2] for p in parts]).astype(bool)
-        self.t_reach = np.full(new.facets.size, np.inf)
-        kept = np.zeros(new.facets.size, bool)
-        if P.size and new.facets.size:
+        self.t_reach = np.full(new_if.facets.size, np.inf)
+        kept = np.zeros(new_if.facets.size, bool)
+        if P.size and new_if.facets.size:
             from scipy.spatial import cKDTree
-            dist, j = cKDTree(P).query(mid(new))
-            near = dist <= 0.5 * new.length
+            dist, j = cKDTree(P).query(mid(new_if))
+            near = dist <= 0.5 * new_if.length
             self.t_reach[near] = T[j[near]]
             kept[near] = K[j[near]]
         if self.still_loaded is not None:
             self.still_loaded = kept
-        self.iface = new
 
-    def __call__(self, solver):
-        if self.scene.iface is not self.iface:
-            self._follow_remesh()
-        hyd, iface = self.hyd, self.iface
-        hyd.on_step(solver)
-        t = solver.t
+    def __call__(self, problem):
+        hyd, iface, comm, t = problem.hydraulics, problem.interface, problem.comm, problem.t
+        if self.t_reach is None:
+            self.t_reach = np.full(iface.facets.size, np.inf)
         fields = iface.fields()
-        comm = solver.comm
-        w = iface.weights
-        net = hyd.network[:, None] * w
+        net = hyd.network[:, None] * iface.weights
         sep = comm.allreduce(float(((fields["mode"] == MODE_SEPARATED) * net).sum()), op=MPI.SUM)
         tot = comm.allreduce(float(net.sum()), op=MPI.SUM)
         self.sep_fraction.append((t, sep / max(tot, 1e-300)))
         if t >= self.t_off:
-            self.energy_after_off.append((t, solver.energy.balance_error))
+            self.energy_after_off.append((t, problem.solver.energy.balance_error))
         if t >= self.t_on:
             loaded = hyd.fp_q.mean(axis=1) > 0.5
             if self.still_loaded is None:
@@ -164,15 +132,13 @@ class Monitor:
             hit = loaded & ~np.isfinite(self.t_reach)
             self.t_reach[hit] = t
 
-    def history(self):
+    def history(self, problem):
         t, f = self.sep_fraction[-1] if self.sep_fraction else (0.0, 0.0)
-        return {"p_h": self.hyd.params.pressure(self.s.t), "separated_fraction": f,
-                "network_length": self.hyd.loaded_length()[1]}
+        return {"p_h": problem.hydraulics.params.pressure(problem.t), "separated_fraction": f,
+                "network_length": problem.hydraulics.loaded_length()[1]}
 
-    def accuracy(self):
-        if self.scene.iface is not self.iface:  # the run ended right after a remesh
-            self._follow_remesh()
-        iface, hyd, comm = self.iface, self.hyd, self.s.comm
+    def accuracy(self, problem):
+        iface, hyd, comm, solver = problem.interface, problem.hydraulics, problem.comm, problem.solver
         # order of re-loading against the distance along the network (gathered on all ranks)
         still = self.still_loaded if self.still_loaded is not None else np.zeros(self.t_reach.size, bool)
         parts = comm.allgather((hyd.vertices, iface.length, hyd.network, hyd.source, self.t_reach, still))
@@ -205,45 +171,40 @@ class Monitor:
             # and from the re-loading to the end, for comparison (the budget's time-discretisation
             # error of the fast re-load, not a spurious growth)
             "balance_error_growth_after_reload": float(e[-1, 1] - off[-1, 1]) if len(off) and len(e) else 0.0,
-            "energy_scale": float(self.s.energy.initial + self.s.energy.work_in),
+            "energy_scale": float(solver.energy.initial + solver.energy.work_in),
             "separated_fraction_before_reload": float(before_on[-1, 1]) if len(before_on) else float("nan"),
             "min_opening": -iface.max_penetration(), "opening_floor": floor,
         }
 
 
-def main(argv=None):
-    parser = scenario_parser("Re-fracturing under an on/off/on hydraulic load (paper §3.2)")
-    parser.add_argument("--tau", type=float, default=30e-6, help="damage relaxation time tau~ [s]")
-    wellbore.add_growth_arguments(parser)
-    args = parser.parse_args(argv)
-    wellbore.check_growth_arguments(parser, args)
-    degree = args.degree or (1 if args.quick else 2)
-    scene, driver = Scene(), None
-    if args.growth:
-        scene, driver, (t_off, t_on, t_end) = growth_setup(args, degree)
-    else:
-        solver, iface, hyd, (t_off, t_on, t_end) = setup(quick=args.quick, degree=degree, tau=args.tau)
-        scene.set(solver, iface, hyd)
-    mon = Monitor(scene, t_off, t_on)
-    opts = RunOptions(t_end=args.t_end or t_end, out=args.out or "results/refracture", frames=args.frames or 50,
-                      restart=args.restart, history_every=5)
-    if driver is not None:
-        driver.record = Path(opts.out) / "growth.json"  # the grown paths, written as they grow
-
-    def accuracy(s):
-        acc = mon.accuracy()
-        if driver is not None:
-            acc.update(remeshes=driver.count, extensions=len(driver.events), joined=len(driver.joined),
-                       grown_length=sum(float(np.linalg.norm(np.diff(np.array(p), axis=0), axis=1).sum())
-                                        for p in driver.paths))
-        return acc
-    summary = run(scene.solver, opts, name="refracture", extra_parts=lambda: scene.iface.part(), on_step=mon,
-                  history_extra=mon.history, accuracy=accuracy, remesh=driver)
+def run(problem, options: RunOptions, t_off, t_on):
+    """Run ``problem`` with the re-fracture monitor (``t_off``, ``t_on``: the end of the
+    removal and the re-loading)."""
+    summary = run_problem(problem, options, name="refracture", monitors=[RefractureMonitor(t_off, t_on)])
     acc = summary["accuracy"]
-    log(scene.solver.comm, f"[refracture] separated fraction just before re-loading {acc['separated_fraction_before_reload']:.3f}; "
-                     f"re-loading order vs distance from the perforations: Spearman {acc['reload_order_spearman']:.3f} "
-                     f"over {acc['reloaded_facets']} facets")
+    log(problem.comm, f"[refracture] separated fraction just before re-loading "
+                      f"{acc['separated_fraction_before_reload']:.3f}; re-loading order vs distance from the "
+                      f"perforations: Spearman {acc['reload_order_spearman']:.3f} over {acc['reloaded_facets']} facets")
     return summary
+
+
+def main(argv=None):
+    parser = cli.scenario_parser("Re-fracturing under an on/off/on hydraulic load (paper §3.2)")
+    parser.add_argument("--tau", type=float, default=30e-6, help="damage relaxation time tau~ [s]")
+    cli.add_growth_arguments(parser)
+    histories = [geometry(q)[3] for q in (False, True)]  # (pressure, t_off, t_on, t_end), full and --quick
+    args = cli.parse(parser, argv, name="refracture", degree=(2, 1), t_end=tuple(h[3] for h in histories),
+                     frames=50)
+    cli.check_growth_arguments(parser, args)
+    _, t_off, t_on, _ = histories[args.quick]
+    params = dict(quick=args.quick, degree=args.degree, tau=args.tau, growth=wellbore.Growth.from_args(args))
+    desc = description(**params)
+    r0 = desc.domain.wellbore_radius + desc.perforations[0].length
+    if desc.growth is not None and not desc.growth.max_radius > r0:
+        parser.error(f"--growth-max-radius {desc.growth.max_radius} m does not reach beyond the perforation tips "
+                     f"({r0} m from the centre); make it larger")
+    problem = setup(record=Path(args.out) / "growth.json", **params)
+    return run(problem, cli.run_options(args, history_every=5), t_off, t_on)
 
 
 if __name__ == "__main__":

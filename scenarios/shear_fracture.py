@@ -40,10 +40,13 @@ import math
 import numpy as np
 from mpi4py import MPI
 
-from hydrofrac import CONFINEMENT, ROCK, compat
+from hydrofrac import CONFINEMENT, ROCK, cli
 from hydrofrac.boundary import Absorbing, PiecewiseLinear, Velocity
 from hydrofrac.interface import Crack, Interface, crack_facet_indices
-from hydrofrac.run import RunOptions, log, run, scenario_parser
+from hydrofrac.meshes.blocks import square_with_segment
+from hydrofrac.problem import Problem
+from hydrofrac.run import Monitor, RunOptions, log
+from hydrofrac.run import run as run_problem
 from hydrofrac.solver import Solver
 # -
 
@@ -83,33 +86,8 @@ T_END = (R + A * abs(math.cos(THETA))) / ROCK.cs + T_PULSE + 0.2 * R / ROCK.cs
 
 def fracture_mesh(comm, h: float):
     """Square [-R, R]^2 with the fracture segment embedded; returns (mesh, facet tags)."""
-    import gmsh
-    if comm.rank == 0:
-        gmsh.initialize()
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.model.add("shear_fracture")
-        occ = gmsh.model.occ
-        square = occ.addRectangle(-R, -R, 0.0, 2 * R, 2 * R)
-        dx, dy = A * math.cos(THETA), A * math.sin(THETA)
-        p0, p1 = occ.addPoint(-dx, -dy, 0.0), occ.addPoint(dx, dy, 0.0)
-        crack = occ.addLine(p0, p1)
-        occ.synchronize()
-        gmsh.model.mesh.embed(1, [crack], 2, square)
-        left, other = [], []
-        for _, curve in gmsh.model.getBoundary([(2, square)], oriented=False):
-            xc = occ.getCenterOfMass(1, abs(curve))[0]
-            (left if abs(xc + R) < 1e-6 * R else other).append(abs(curve))
-        gmsh.model.addPhysicalGroup(2, [square], BLOCK)
-        gmsh.model.addPhysicalGroup(1, [crack], CRACK)
-        gmsh.model.addPhysicalGroup(1, left, LEFT)
-        gmsh.model.addPhysicalGroup(1, other, OTHER)
-        gmsh.option.setNumber("Mesh.CharacteristicLengthMax", h)
-        gmsh.option.setNumber("Mesh.CharacteristicLengthMin", h)
-        gmsh.model.mesh.generate(2)
-    mesh, _, facet_tags = compat.gmsh_model_to_mesh(gmsh.model, comm, rank=0, gdim=2)
-    if comm.rank == 0:
-        gmsh.finalize()
-    return mesh, facet_tags
+    dx, dy = A * math.cos(THETA), A * math.sin(THETA)
+    return square_with_segment(comm, R, (-dx, -dy), (dx, dy), h, BLOCK, CRACK, LEFT, OTHER)
 
 
 # ## Model
@@ -120,7 +98,7 @@ def fracture_mesh(comm, h: float):
 # :class:`~hydrofrac.interface.Crack` with D = 1 whose opening starts at the
 # penetration floor, in contact; its separation traction is zero (no fluid).
 
-def setup(comm=MPI.COMM_WORLD, size="default", degree=None):
+def setup(comm=MPI.COMM_WORLD, size="default", degree=None) -> Problem:
     h, p_default = SIZES[size]
     mesh, tags = fracture_mesh(comm, h)
     sigma0 = -CONFINEMENT * np.eye(2)
@@ -130,8 +108,7 @@ def setup(comm=MPI.COMM_WORLD, size="default", degree=None):
     bcs = [Velocity(LEFT, value=(0.0, V_PEAK), history=pulse), Absorbing(OTHER, stress=sigma0)]
     solver = Solver(mesh, p_default if degree is None else degree, ROCK, facet_tags=tags, bcs=bcs,
                     sigma0=sigma0, crack_facets=crack_facet_indices(mesh, tags, cracks))
-    iface = Interface(solver, tags, cracks)
-    return solver, iface
+    return Problem(solver, Interface(solver, tags, cracks), facet_tags=tags)
 
 
 # ## Measurements
@@ -140,20 +117,22 @@ def setup(comm=MPI.COMM_WORLD, size="default", degree=None):
 # ratio $|s^*_2| / (k\langle -s^*_1\rangle)$ (0/0 counts as 0; shear without compression
 # counts as infinite), the largest slip and the friction power.
 
-class Recorder:
+class Recorder(Monitor):
     """Per-step fracture measurements (the same numbers on every rank)."""
 
-    def __init__(self, iface: Interface):
-        self.iface = iface
+    checkpointed = ("ratio_max", "friction_power_min", "slipping_steps", "last")
+
+    def __init__(self):
         self.ratio_max = 0.0
         self.friction_power_min = math.inf
         self.slipping_steps = 0
         self.last = {"coulomb_ratio": 0.0, "friction_power": 0.0, "slip_max": 0.0}  # history columns
 
-    def __call__(self, solver: Solver):
-        T, comm = self.iface.last, solver.comm
+    def __call__(self, problem):
+        iface, comm = problem.interface, problem.comm
+        T = iface.last
         ratio, slipping = 0.0, 0
-        if self.iface.facets.size:
+        if iface.facets.size:
             sn, st = T["s_star"][:, 0], T["s_star"][:, 1]
             bound = FRICTION * np.maximum(-sn, 0.0)
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -163,58 +142,60 @@ class Recorder:
             slipping = int(np.any(contact & (T["gamma"] == 0)))
         self.ratio_max = max(self.ratio_max, comm.allreduce(ratio, op=MPI.MAX))
         self.slipping_steps += comm.allreduce(slipping, op=MPI.MAX)
-        power = self.iface.dissipation_rates()["friction"]
+        power = iface.dissipation_rates()["friction"]
         self.friction_power_min = min(self.friction_power_min, power)
-        self.last = {"coulomb_ratio": ratio, "friction_power": power, "slip_max": self.slip_max()}
+        self.last = {"coulomb_ratio": ratio, "friction_power": power, "slip_max": slip_max(iface)}
 
-    def slip_max(self):
-        loc = float(np.abs(self.iface.state[2]).max()) if self.iface.facets.size else 0.0
-        return self.iface.solver.comm.allreduce(loc, op=MPI.MAX)
+    def history(self, problem):
+        return self.last
 
-    def slip_mean(self):
-        """Length-weighted mean |slip| along the fracture [m]."""
-        iface, comm = self.iface, self.iface.solver.comm
-        w = iface.weights
-        num = comm.allreduce(float((np.abs(iface.state[2]) * w).sum()), op=MPI.SUM)
-        den = comm.allreduce(float(w.sum()), op=MPI.SUM)
-        return num / den
-
-
-def accuracy_report(rec: Recorder):
-    def report(solver: Solver):
-        e = solver.energy.as_dict()
-        iface = rec.iface
+    def accuracy(self, problem):
+        e = problem.solver.energy.as_dict()
+        iface = problem.interface
         local = float(iface.delta_scale.max()) if iface.delta_scale.size else 0.0
         return {
-            "coulomb_ratio_max": rec.ratio_max,
-            "slip_max": rec.slip_max(),
-            "slip_mean": rec.slip_mean(),
-            "slipped": rec.slip_max() > 0,
-            "slipping_steps": rec.slipping_steps,
+            "coulomb_ratio_max": self.ratio_max,
+            "slip_max": slip_max(iface),
+            "slip_mean": slip_mean(iface),
+            "slipped": slip_max(iface) > 0,
+            "slipping_steps": self.slipping_steps,
             "friction_dissipation": e["dissipated_friction"],
-            "friction_power_min": rec.friction_power_min,
+            "friction_power_min": self.friction_power_min,
             "energy_balance_error_relative": e["balance_error_relative"],
             "penetration_max": iface.max_penetration(),
-            "penetration_allowed": abs(iface.contact.delta0) * solver.comm.allreduce(local, op=MPI.MAX),
+            "penetration_allowed": abs(iface.contact.delta0) * problem.comm.allreduce(local, op=MPI.MAX),
         }
-    return report
+
+
+def slip_max(iface):
+    loc = float(np.abs(iface.state[2]).max()) if iface.facets.size else 0.0
+    return iface.solver.comm.allreduce(loc, op=MPI.MAX)
+
+
+def slip_mean(iface):
+    """Length-weighted mean |slip| along the fracture [m]."""
+    comm, w = iface.solver.comm, iface.weights
+    num = comm.allreduce(float((np.abs(iface.state[2]) * w).sum()), op=MPI.SUM)
+    den = comm.allreduce(float(w.sum()), op=MPI.SUM)
+    return num / den
+
+
+def run(problem, options: RunOptions):
+    """Run with the fracture measurements."""
+    summary = run_problem(problem, options, name="shear_fracture", monitors=[Recorder()])
+    acc = summary["accuracy"]
+    log(problem.comm, f"[shear_fracture] max |s_t|/(k|s_n|) = {acc['coulomb_ratio_max']:.6f} (bound 1), "
+                      f"slip max {acc['slip_max'] * 1e6:.3f} µm, friction dissipation "
+                      f"{acc['friction_dissipation']:.4g} J/m")
+    return summary
 
 
 def main(argv=None):
-    parser = scenario_parser("A frictional natural fracture under shear-wave loading (hydrofrac scenario)")
-    args = parser.parse_args(argv)
-    comm = MPI.COMM_WORLD
-    size = "quick" if args.quick else "default"
-    solver, iface = setup(comm, size, degree=args.degree)
-    rec = Recorder(iface)
-    options = RunOptions(t_end=args.t_end or T_END, out=args.out or "results/shear_fracture",
-                         frames=args.frames or (5 if args.quick else 40), restart=args.restart)
-    summary = run(solver, options, name="shear_fracture", extra_parts=iface.part, on_step=rec,
-                  history_extra=lambda: rec.last, accuracy=accuracy_report(rec))
-    acc = summary["accuracy"]
-    log(comm, f"[shear_fracture] max |s_t|/(k|s_n|) = {acc['coulomb_ratio_max']:.6f} (bound 1), "
-              f"slip max {acc['slip_max'] * 1e6:.3f} µm, friction dissipation {acc['friction_dissipation']:.4g} J/m")
-    return summary
+    parser = cli.scenario_parser("A frictional natural fracture under shear-wave loading (hydrofrac scenario)")
+    args = cli.parse(parser, argv, name="shear_fracture", degree=(SIZES["default"][1], SIZES["quick"][1]),
+                     t_end=T_END, frames=(40, 5))
+    problem = setup(MPI.COMM_WORLD, "quick" if args.quick else "default", degree=args.degree)
+    return run(problem, options=cli.run_options(args))
 
 
 if __name__ == "__main__":

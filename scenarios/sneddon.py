@@ -19,12 +19,14 @@ from __future__ import annotations
 import numpy as np
 from mpi4py import MPI
 
-from hydrofrac import CONFINEMENT, ROCK
+from hydrofrac import CONFINEMENT, ROCK, cli
 from hydrofrac.boundary import Absorbing, PiecewiseLinear
-from hydrofrac.hydraulics import HydraulicParams, Hydraulics
+from hydrofrac.hydraulics import HydraulicParams
 from hydrofrac.interface import Crack, Interface, crack_facet_indices
 from hydrofrac.meshes.fractures import NATURAL, OUTER, Domain, Fracture, fracture_mesh
-from hydrofrac.run import RunOptions, log, run, scenario_parser
+from hydrofrac.problem import Problem
+from hydrofrac.run import Monitor, RunOptions, log
+from hydrofrac.run import run as run_problem
 from hydrofrac.solver import Solver
 
 
@@ -47,7 +49,7 @@ def pressure_ramp(p0, dp, t_ramp):
 
 
 def setup(comm=MPI.COMM_WORLD, degree=2, a=1.0, dp=1.0e6, p0=CONFINEMENT, size=6.0, h_crack=0.05,
-          h_far=1.0, t_ramp=1.0e-3, relaxation=0.0):
+          h_far=1.0, t_ramp=1.0e-3, relaxation=0.0) -> Problem:
     fm = make_mesh(comm, a, size, h_crack, h_far)
     sigma0 = -p0 * np.eye(2)
     cracks = [Crack(NATURAL, friction=0.0, damage=1.0)]
@@ -55,9 +57,8 @@ def setup(comm=MPI.COMM_WORLD, degree=2, a=1.0, dp=1.0e6, p0=CONFINEMENT, size=6
                     bcs=[Absorbing(OUTER, stress=sigma0)],
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks), relaxation=relaxation)
     iface = Interface(solver, fm.facet_tags, cracks)
-    hyd = Hydraulics(iface, HydraulicParams(pressure=pressure_ramp(p0, dp, t_ramp), sources=[NATURAL],
-                                            regularized=False))
-    return solver, iface, hyd
+    hyd = HydraulicParams(pressure=pressure_ramp(p0, dp, t_ramp), sources=[NATURAL], regularized=False)
+    return Problem(solver, iface, hyd, facet_tags=fm.facet_tags)
 
 
 # ## Accuracy: L2 error of the opening away from the tips (|x| < 0.9 a)
@@ -77,41 +78,45 @@ def opening_error(solver, iface, a, dp):
             "opening_centre": c_num / max(c_n, 1), "opening_centre_exact": float(exact_opening(0.0, a, dp))}
 
 
+class OpeningMonitor(Monitor):
+    """The opening against Sneddon's in the history and the summary."""
+
+    def __init__(self, a, dp):
+        self.a, self.dp = a, dp
+
+    def history(self, problem):
+        e = opening_error(problem.solver, problem.interface, self.a, self.dp)
+        return {"p_h": problem.hydraulics.params.pressure(problem.t), "opening_centre": e["opening_centre"],
+                "opening_L2_rel_error": e["opening_L2_rel_error"]}
+
+    def accuracy(self, problem):
+        return opening_error(problem.solver, problem.interface, self.a, self.dp)
+
+
+def run(problem, options: RunOptions, a=1.0, dp=1.0e6):
+    """Run with the opening measurements."""
+    summary = run_problem(problem, options, name="sneddon", monitors=[OpeningMonitor(a, dp)])
+    acc = summary["accuracy"]
+    log(problem.comm, f"[sneddon] opening at the centre {acc['opening_centre'] * 1e3:.4f} mm (exact "
+                      f"{acc['opening_centre_exact'] * 1e3:.4f} mm), L2 error {acc['opening_L2_rel_error']:.3%}")
+    return summary
+
+
 def main(argv=None):
-    parser = scenario_parser("Sneddon's pressurised crack under confinement")
+    parser = cli.scenario_parser("Sneddon's pressurised crack under confinement")
     parser.add_argument("--dp", type=float, default=1.0e6, help="net pressure p_h - p0 [Pa]")
     parser.add_argument("--p0", type=float, default=CONFINEMENT, help="confinement p0 [Pa] (0: unconfined)")
     parser.add_argument("--relaxation", type=float, default=1500.0,
                         help="dynamic-relaxation damping c [1/s] that brings the run to the static state "
                              "(0 = undamped dynamics)")
-    args = parser.parse_args(argv)
+    args = cli.parse(parser, argv, name="sneddon", degree=2, t_end=3.0e-3, frames=10)
+    if not args.dp > 0:
+        parser.error(f"--dp (net pressure) must be > 0 Pa; got {args.dp}")
     a = 1.0
-    if args.quick:
-        kw = dict(size=8.0, h_crack=0.1, h_far=1.5, t_ramp=1.0e-3, relaxation=args.relaxation)
-        t_end = 3.0e-3
-    else:
-        kw = dict(size=10.0, h_crack=0.05, h_far=1.5, t_ramp=1.0e-3, relaxation=args.relaxation)
-        t_end = 3.0e-3
-    solver, iface, hyd = setup(degree=args.degree or 2, a=a, dp=args.dp, p0=args.p0, **kw)
-    hist = []
-
-    def on_step(s):
-        hyd.on_step(s)
-
-    def history_extra():
-        e = opening_error(solver, iface, a, args.dp)
-        return {"p_h": hyd.params.pressure(solver.t), "opening_centre": e["opening_centre"],
-                "opening_L2_rel_error": e["opening_L2_rel_error"]}
-
-    opts = RunOptions(t_end=args.t_end or t_end, out=args.out or "results/sneddon", frames=args.frames or 10,
-                      restart=args.restart, history_every=10)
-    summary = run(solver, opts, name="sneddon", extra_parts=iface.part, on_step=on_step,
-                  history_extra=history_extra, accuracy=lambda s: opening_error(s, iface, a, args.dp))
-    del hist
-    acc = summary["accuracy"]
-    log(solver.comm, f"[sneddon] opening at the centre {acc['opening_centre'] * 1e3:.4f} mm "
-                     f"(exact {acc['opening_centre_exact'] * 1e3:.4f} mm), L2 error {acc['opening_L2_rel_error']:.3%}")
-    return summary
+    size, h_crack = (8.0, 0.1) if args.quick else (10.0, 0.05)
+    problem = setup(degree=args.degree, a=a, dp=args.dp, p0=args.p0, size=size, h_crack=h_crack, h_far=1.5,
+                    t_ramp=1.0e-3, relaxation=args.relaxation)
+    return run(problem, a=a, dp=args.dp, options=cli.run_options(args, history_every=10))
 
 
 if __name__ == "__main__":

@@ -21,10 +21,12 @@ from __future__ import annotations
 import numpy as np
 from mpi4py import MPI
 
-from hydrofrac import ROCK, compat
+from hydrofrac import ROCK, cli, compat
 from hydrofrac.boundary import Symmetry
 from hydrofrac.interface import ContactParams, Crack, Interface, crack_facet_indices
-from hydrofrac.run import RunOptions, log, run, scenario_parser
+from hydrofrac.problem import Problem
+from hydrofrac.run import Monitor, RunOptions, log
+from hydrofrac.run import run as run_problem
 from hydrofrac.solver import Solver
 
 CRACK, SIDES = 10, 1
@@ -47,30 +49,33 @@ def make_mesh(comm, L, nx):
 # ## Model
 # The bars start at rest-stress with velocity +v₀ (left) and −v₀ (right).  The
 # crack starts closed with zero opening (δ = 0): touching, not pressed.
-def setup(comm=MPI.COMM_WORLD, degree=3, nx=80, L=1.0, v0=1.0, delta0=-0.01, material=ROCK):
+def setup(comm=MPI.COMM_WORLD, degree=3, nx=80, L=1.0, v0=1.0, delta0=-0.01, material=ROCK) -> Problem:
     mesh, tags = make_mesh(comm, L, nx)
     cracks = [Crack(CRACK, friction=0.0, damage=1.0, opening=0.0)]
     solver = Solver(mesh, degree, material, facet_tags=tags, bcs=[Symmetry(SIDES)],
                     crack_facets=crack_facet_indices(mesh, tags, cracks))
     solver.set_initial_state(lambda x: np.vstack([np.where(x[0] < 0, v0, -v0)] + [0 * x[0]] * 4), by_cell=True)
-    iface = Interface(solver, tags, cracks, contact=ContactParams(delta0=delta0))
-    return solver, iface
+    return Problem(solver, Interface(solver, tags, cracks, contact=ContactParams(delta0=delta0)), facet_tags=tags)
 
 
 # ## Measurements against the exact answer
 # We record the mean interface traction and contact fraction after every step.
-class Recorder:
-    def __init__(self, iface):
-        self.iface = iface
+class Recorder(Monitor):
+    checkpointed = ("t", "sn", "eta")
+
+    def __init__(self, L=1.0, v0=1.0):
+        self.L, self.v0 = L, v0
         self.t, self.sn, self.eta = [], [], []
 
-    def __call__(self, solver):
-        T = self.iface.last
-        comm = solver.comm
+    def __call__(self, problem):
+        T, comm = problem.interface.last, problem.comm
         n = comm.allreduce(T["eta"].size, op=MPI.SUM)
-        self.t.append(solver.t)
+        self.t.append(problem.t)
         self.sn.append(comm.allreduce(float(T["s_star"][:, 0].sum()), op=MPI.SUM) / n)
         self.eta.append(comm.allreduce(float(T["eta"].sum()), op=MPI.SUM) / n)
+
+    def accuracy(self, problem):
+        return accuracy(problem.solver, problem.interface, self, self.L, self.v0)
 
 
 def bar_velocity(solver, side):
@@ -118,24 +123,24 @@ def accuracy(solver, iface, rec, L, v0):
     }
 
 
-def main(argv=None):
-    parser = scenario_parser("Two bars closing at ±v0: contact stress, duration, rebound")
-    parser.add_argument("--delta0", type=float, default=-0.01, help="maximum normalised penetration δ'₀ < 0")
-    args = parser.parse_args(argv)
-    L, v0 = 1.0, 1.0
-    degree = args.degree or 3
-    # --quick: the coarsest size that meets the case-9 tolerances, run just past separation
-    nx = 80 if args.quick else 160
-    t_end = args.t_end or (0.75e-3 if args.quick else 1.0e-3)
-    solver, iface = setup(degree=degree, nx=nx, L=L, v0=v0, delta0=args.delta0)
-    rec = Recorder(iface)
-    opts = RunOptions(t_end=t_end, out=args.out or "results/two_bars",
-                      frames=args.frames or 20, restart=args.restart)
-    summary = run(solver, opts, name="two_bars", extra_parts=iface.part, on_step=rec,
-                  accuracy=lambda s: accuracy(s, iface, rec, L, v0))
-    log(solver.comm, f"[two_bars] contact stress {summary['accuracy']['contact_stress'] / 1e6:.4f} MPa "
-                     f"(exact {summary['accuracy']['contact_stress_exact'] / 1e6:.4f} MPa)")
+def run(problem, options: RunOptions, L=1.0, v0=1.0):
+    """Run with the contact measurements."""
+    summary = run_problem(problem, options, name="two_bars", monitors=[Recorder(L, v0)])
+    log(problem.comm, f"[two_bars] contact stress {summary['accuracy']['contact_stress'] / 1e6:.4f} MPa "
+                      f"(exact {summary['accuracy']['contact_stress_exact'] / 1e6:.4f} MPa)")
     return summary
+
+
+def main(argv=None):
+    parser = cli.scenario_parser("Two bars closing at ±v0: contact stress, duration, rebound")
+    parser.add_argument("--delta0", type=float, default=-0.01, help="maximum normalised penetration δ'₀ < 0")
+    # --quick: the coarsest size that meets the case-9 tolerances, run just past separation
+    args = cli.parse(parser, argv, name="two_bars", degree=3, t_end=(1.0e-3, 0.75e-3), frames=20)
+    if not args.delta0 < 0:
+        parser.error(f"--delta0 (maximum normalised penetration) must be < 0; got {args.delta0}")
+    L, v0 = 1.0, 1.0
+    problem = setup(degree=args.degree, nx=80 if args.quick else 160, L=L, v0=v0, delta0=args.delta0)
+    return run(problem, L=L, v0=v0, options=cli.run_options(args))
 
 
 if __name__ == "__main__":

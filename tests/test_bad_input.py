@@ -138,9 +138,10 @@ def test_growth_options_rejected_before_meshing(name, args, word, capsys, tmp_pa
     assert not (tmp_path / "run").exists()
 
 
-def test_growth_limit_inside_the_perforations_rejected(tmp_path):
-    """A growth limit that does not reach beyond the perforation tips is rejected before the
-    first mesh is made."""
-    with pytest.raises(ValueError, match="perforation tips"):
+def test_growth_limit_inside_the_perforations_rejected(tmp_path, capsys):
+    """A growth limit that does not reach beyond the perforation tips is rejected (exit 2)
+    before the first mesh is made."""
+    with pytest.raises(SystemExit) as info:
         _scenario("refracture").main(["--quick", "--growth-max-radius", "0.2", "--out", str(tmp_path / "run")])
+    assert info.value.code == 2 and "perforation tips" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()

@@ -239,7 +239,7 @@ def test_cfl_unstable_at_one_and_a_half(p, scheme):
     it within a few hundred steps, before any NaN, with a message that names the cause and
     the remedy."""
     mesh, _ = exact.unit_square(12)
-    solver = Solver(mesh, p, ROCK, scheme=scheme, cfl=1.5 * CFL_DEFAULT[scheme])
+    solver = Solver(mesh, p, ROCK, scheme=scheme, cfl=1.5 * CFL_DEFAULT[scheme], allow_unstable=True)
     solver.set_initial_state(exact.rough_state(ROCK))
     with pytest.raises(BlowUpError, match=r"unstable at step \d+.*too large.*CFL constant <= ") as err:
         for _ in range(300):
@@ -256,7 +256,7 @@ def test_run_blowup_keeps_last_good_state(tmp_path):
     comm = MPI.COMM_WORLD
     out = Path(comm.bcast(str(tmp_path), root=0)) / "blowup"
     mesh, _ = exact.unit_square(12)
-    solver = Solver(mesh, 1, ROCK, cfl=1.5 * CFL_DEFAULT["rk4"])
+    solver = Solver(mesh, 1, ROCK, cfl=1.5 * CFL_DEFAULT["rk4"], allow_unstable=True)
     solver.set_initial_state(exact.rough_state(ROCK))
     with pytest.raises(BlowUpError, match=r"(?s)unstable at step \d+.*last good state") as err:
         run(solver, RunOptions(t_end=400 * solver.dt, out=str(out), frames=4, progress_wall=1e9))

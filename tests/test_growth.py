@@ -21,6 +21,7 @@ ahead of the tip (``GrowthParams``):
   the 5° and 2° of the two checks.
 """
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -46,6 +47,7 @@ def static_crack(alpha_deg, comm=MPI.COMM_WORLD):
     solver = Solver(fm.mesh, 2, ROCK, facet_tags=fm.facet_tags, sigma0=s0, bcs=[Absorbing(OUTER, stress=s0)],
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks), relaxation=1500.0)
     iface = Interface(solver, fm.facet_tags, cracks)
+    solver.attach(iface)
     while solver.t < 3e-3:
         solver.step()
     return solver, iface
@@ -112,7 +114,7 @@ def test_tip_joins_the_first_crack_it_reaches():
     """A new segment that crosses a natural fracture (or another growth path) ends on it."""
     from hydrofrac.growth import GrowthDriver, Tip
     tips = [Tip(np.array([0.5, 0.0]), np.array([1.0, 0.0])), Tip(np.array([0.0, 1.0]), np.array([0.0, 1.0]))]
-    d = GrowthDriver(lambda polylines: (None, None), tips, GrowthParams(r=0.1), da=0.2, threshold=1.0,
+    d = GrowthDriver(lambda polylines: SimpleNamespace(), tips, GrowthParams(r=0.1), da=0.2, threshold=1.0,
                      tags=[300, 301], obstacles=[np.array([[1.0, -1.0], [1.0, 1.0]]), np.array([[0.8, -1.0], [0.8, -0.5]])])
     np.testing.assert_allclose(d._first_crossing(np.array([0.5, 0.0]), np.array([1.5, 0.0]), 0), [1.0, 0.0])
     assert d._first_crossing(np.array([0.5, 0.0]), np.array([0.9, 0.0]), 0) is None  # stops short
@@ -125,7 +127,7 @@ def test_tip_that_curls_back_joins_its_own_crack():
     polyline cannot be meshed); the segment just behind the tip, which shares its start
     point, does not count."""
     from hydrofrac.growth import GrowthDriver, Tip
-    d = GrowthDriver(lambda polylines: (None, None), [Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0]))],
+    d = GrowthDriver(lambda polylines: SimpleNamespace(), [Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0]))],
                      GrowthParams(r=0.1), da=0.2, threshold=1.0, tags=[300])
     d.paths[0] = [np.array(p, float) for p in ([0, 0], [1, 0], [1, 1], [0.5, 1.0])]
     p = d.paths[0][-1]

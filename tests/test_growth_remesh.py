@@ -23,6 +23,7 @@ from hydrofrac.boundary import Absorbing
 from hydrofrac.growth import GrowthParams, Tip, advance_tips, segment_damage
 from hydrofrac.interface import Crack, DamageParams, Interface, crack_facet_indices
 from hydrofrac.meshes.fractures import NATURAL, OUTER, PATH, Domain, Fracture, fracture_mesh
+from hydrofrac.problem import Problem
 from hydrofrac.solver import Solver
 from hydrofrac.transfer import continue_run, transfer_fields, transfer_interface
 
@@ -38,7 +39,7 @@ def build(paths, comm=MPI.COMM_WORLD):
     cracks = [Crack(NATURAL, friction=0.0, damage=1.0)] + [Crack(t, friction=0.0, damage=0.0) for t in fm.paths]
     solver = Solver(fm.mesh, 2, ROCK, facet_tags=fm.facet_tags, sigma0=S0, bcs=[Absorbing(OUTER, stress=S0)],
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks), relaxation=1500.0)
-    return solver, Interface(solver, fm.facet_tags, cracks, damage=DAMAGE)
+    return Problem(solver, Interface(solver, fm.facet_tags, cracks, damage=DAMAGE))
 
 
 def run_for(solver, duration):
@@ -51,7 +52,8 @@ def grow(comm, extensions):
     """The growth loop of the module docstring on ``comm``; returns (paths, angles, waits)."""
     tips = [Tip(np.array([A, 0.0]), np.array([1.0, 0.0])), Tip(np.array([-A, 0.0]), np.array([-1.0, 0.0]))]
     paths = [[t.point.copy()] for t in tips]
-    solver, iface = build(paths, comm)
+    problem = build(paths, comm)
+    solver, iface = problem.solver, problem.interface
     run_for(solver, 3e-3)
     angles, waits = [], []
     for _ in range(extensions):
@@ -69,7 +71,8 @@ def grow(comm, extensions):
         for i, theta, smax, point in moved:
             paths[i].append(point.copy())
             angles.append(math.degrees(math.atan2(point[1] - paths[i][-2][1], point[0] - paths[i][-2][0])))
-        new_solver, new_iface = build([np.array(p) for p in paths], comm)
+        new = build([np.array(p) for p in paths], comm)
+        new_solver, new_iface = new.solver, new.interface
         transfer_fields(solver, new_solver)
         continue_run(solver, new_solver)
         found = transfer_interface(iface, new_iface)
@@ -170,7 +173,7 @@ def test_growth_bad_input_and_failed_remesh(tmp_path):
     driver = GrowthDriver(build, tips, GrowthParams(r=4 * H), da=2 * H, threshold=DAMAGE.s_onset,
                           tags=[PATH, PATH + 1], check_every=5, domain_size=16.0)
     with pytest.raises(RuntimeError, match="remeshing after crack growth failed") as info:
-        run(driver.solver, RunOptions(t_end=1e-3, out=tmp_path, frames=4), name="g", remesh=driver)
+        run(driver.problem, RunOptions(t_end=1e-3, out=tmp_path, frames=4), name="g")
     assert "last good state" in str(info.value)
     assert (tmp_path / "g.pvd").exists() and (tmp_path / "checkpoint").exists()
 

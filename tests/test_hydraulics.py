@@ -189,7 +189,7 @@ def test_regularisation_velocity_spike_measured(intersections):
     must intersect at the same time): the peak opening rate of its faces and their peak
     particle speed.  Unregularised, the whole fracture is loaded at once and opens at once;
     regularised, the load has not reached that part yet: it stays closed, and its faces move
-    with the waves only.  The measured numbers are printed and reported in the README."""
+    with the waves only.  The measured numbers are printed and reported in docs/studies/scenarios.md."""
     reg = intersections["regularized"][0]["accuracy"]
     unreg = intersections["unregularized"][0]["accuracy"]
     assert reg["intersection_time"] == unreg["intersection_time"]

@@ -22,6 +22,7 @@ from petsc4py import PETSc
 from hydrofrac import CONFINEMENT, ROCK, compat
 from hydrofrac.boundary import Absorbing, PiecewiseLinear, Slider, Symmetry, Traction, Velocity
 from hydrofrac.interface import ContactParams, Crack, DamageParams, Interface, crack_facet_indices
+from hydrofrac.problem import Problem
 from hydrofrac.solver import Solver
 
 from conftest import ROOT
@@ -101,6 +102,7 @@ def rhs_parts(mesh, tags, degree, seed):
     crack_idx = crack_facet_indices(mesh, tags, cracks)
     with_iface = Solver(mesh, degree, ROCK, facet_tags=tags, crack_facets=crack_idx)
     iface = Interface(with_iface, tags, cracks)
+    with_iface.attach(iface)
     no_crack = Solver(mesh, degree, ROCK, facet_tags=tags)
     no_flux = Solver(mesh, degree, ROCK, facet_tags=tags, crack_facets=crack_idx)
     out = []
@@ -186,7 +188,8 @@ def confined_crack(p, tau=3e-6, nx=20, L=0.1):
                     bcs=[Symmetry(SIDES), Traction(LEFT, stress=SIGMA0), Traction(RIGHT, stress=SIGMA0)],
                     crack_facets=crack_facet_indices(mesh, tags, cracks))
     iface = Interface(solver, tags, cracks, damage=DamageParams(tau=tau))
-    iface.separation_traction = lambda t: (np.array([-p, 0.0]), None)  # S = (-p, 0)
+    solver.attach(iface)
+    iface.set_separation_law(lambda t: (np.array([-p, 0.0]), None))  # S = (-p, 0)
     return solver, iface
 
 
@@ -236,7 +239,7 @@ def test_contact_separation_transition_continuous():
         ps = P0 + np.linspace(-2 * band, 3 * band, num)
         rates = []
         for p in ps:
-            iface.separation_traction = lambda t, p=p: (np.array([-p, 0.0]), None)
+            iface.set_separation_law(lambda t, p=p: (np.array([-p, 0.0]), None))
             iface.stage_state = iface.state.copy()
             r = solver.rhs(solver.x, 0.0, out)[0]
             rates.append(comm.allreduce(float(r[1].max()) if r[1].size else -np.inf, op=MPI.MAX))
@@ -273,6 +276,7 @@ def sheared_crack(peak_ratio, k=0.6, L=1.0, nx=40, degree=2, T=2e-4):
                     bcs=[Slider(SIDES), Velocity(LEFT, value=(0.0, V), history=pulse), Absorbing(RIGHT, stress=s0)],
                     crack_facets=crack_facet_indices(mesh, tags, cracks))
     iface = Interface(solver, tags, cracks)
+    solver.attach(iface)
     # the exact slip: (2/Z_s) * integral of <|s_inc| - k p0>, s_inc = Z_s V g(t - L/c_s)
     tf = np.linspace(0.0, T, 200001)
     excess = np.maximum(ROCK.Zs * V * np.interp(tf, tt, pulse.values) - k * P0, 0.0)
@@ -344,7 +348,7 @@ def closing_bars(delta0, gap_steps=10.5, nx=20, degree=2, v0=1.0):
                     crack_facets=crack_facet_indices(mesh, tags, cracks))
     solver.set_initial_state(lambda x: np.vstack([np.where(x[0] < 0, v0, -v0)] + [0 * x[0]] * 4), by_cell=True)
     iface = Interface(solver, tags, cracks, contact=ContactParams(delta0=delta0))
-    return solver, iface, tb.Recorder(iface)
+    return Problem(solver, iface), tb.Recorder()
 
 
 def test_contact_stable_for_any_max_penetration():
@@ -361,7 +365,8 @@ def test_contact_stable_for_any_max_penetration():
     exact = -ROCK.Zd * 1.0
     histories = []
     for delta0 in (-1e-1, -1e-2, -1e-3, -1e-4):
-        solver, iface, rec = closing_bars(delta0)
+        problem, rec = closing_bars(delta0)
+        solver, iface = problem.solver, problem.interface
         assert solver.dt == solver.dt_stable
         solver.update_energy()
         e0 = solver.energy.initial
@@ -369,7 +374,7 @@ def test_contact_stable_for_any_max_penetration():
         while solver.t < 0.8e-3:
             solver.step()
             solver.update_energy()
-            rec(solver)
+            rec(problem)
             e_max = max(e_max, solver.energy.total)
         t, sn, eta = map(np.asarray, (rec.t, rec.sn, rec.eta))
         contact = eta > 0.5

@@ -83,6 +83,7 @@ def pulled_apart(comm, steps=10):
     solver.set_initial_state(lambda x: np.vstack([np.where(x[0] < 0, -v0, v0), np.where(x[0] < 0, 0.5 * v0, -0.5 * v0)]
                                                  + [0 * x[0]] * 3), by_cell=True)
     iface = Interface(solver, tags, cracks, damage=DamageParams(tau=30e-6))
+    solver.attach(iface)
     for _ in range(steps):
         solver.step()
     T = iface.last

@@ -47,7 +47,8 @@ def test_summary_keys(borehole_quick):
     assert summary["ranks"] == 1
     assert summary["dofs"] == summary["cells"] * 5 * (p + 1) * (p + 2) // 2
     assert summary["steps"] > 0 and summary["dt"] > 0
-    assert summary["simulated_time"] == pytest.approx(summary["steps"] * summary["dt"], rel=1e-9)
+    # the last step lands on t_end: it is at most one step
+    assert (summary["steps"] - 1) * summary["dt"] < summary["simulated_time"] <= summary["steps"] * summary["dt"]
     assert summary["wall_time_s"] > 0 and summary["dof_stages_per_s"] > 0
     assert summary["energy"]["work_in"] > 0  # the borehole pressure did work
 

@@ -370,6 +370,7 @@ def test_bonded_interface_debonds_past_strength():
                                                         Absorbing(RIGHT)],
                     crack_facets=crack_facet_indices(mesh, tags, cracks))
     iface = Interface(solver, tags, cracks, damage=dmg)
+    solver.attach(iface)
     t_end = t_arrive + ramp + 8 * dmg.tau
     D_min, s_B_max = [], []
     while solver.t < t_end:

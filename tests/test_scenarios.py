@@ -49,8 +49,8 @@ def lame_state(a, p, p0):
 
 def check_ring_errors():
     bh = load_scenario("borehole")
-    solver, pressure = bh.setup(MPI.COMM_WORLD, "quick", degree=2)
-    p = pressure(1.0)
+    solver = bh.setup(MPI.COMM_WORLD, "quick", degree=2).solver
+    p = bh.pressure_history()(1.0)
     solver.set_initial_state(lame_state(bh.A, p, CONFINEMENT))
     err_rr, err_tt = bh.ring_errors(solver, bh.A, p, CONFINEMENT, 2 * bh.A)
     assert err_rr < 0.01 and err_tt < 0.01  # interpolation error only (0.6% at p = 2)
@@ -70,7 +70,7 @@ def test_borehole_lame_ring_error_mpi():
 
 def test_borehole_accuracy_report_skips_short_runs():
     bh = load_scenario("borehole")
-    solver, pressure = bh.setup(MPI.COMM_WORLD, "quick")
-    report = bh.accuracy_report(bh.A, pressure)(solver)
+    problem = bh.setup(MPI.COMM_WORLD, "quick")
+    report = bh.LameReport(bh.A, bh.pressure_history()).accuracy(problem)
     assert "not compared" in report["lame_ring"]
     assert "energy_balance_relative_error" in report

@@ -29,7 +29,9 @@ def cracked_plate(h, comm=MPI.COMM_WORLD, p=2):
     cracks = [Crack(NATURAL, friction=0.0, damage=1.0)]
     solver = Solver(fm.mesh, p, ROCK, facet_tags=fm.facet_tags, sigma0=S0, bcs=[Absorbing(OUTER, stress=S0)],
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks), relaxation=1500.0)
-    return solver, Interface(solver, fm.facet_tags, cracks)
+    iface = Interface(solver, fm.facet_tags, cracks)
+    solver.attach(iface)
+    return solver, iface
 
 
 @pytest.mark.parametrize("method", ["projection", "interpolation"])

@@ -1,0 +1,147 @@
+"""The scenarios' command line: the one place argparse lives.
+
+Every scenario script takes the options of :func:`scenario_parser` and its own, and reads
+them with :func:`parse`, which handles ``--quick`` one way everywhere (a default given as
+``(full, quick)``), never replaces a value the user gave (``--degree 0`` is an error, not the
+default), and rejects bad values before any set-up.  :func:`run_options` turns the parsed
+options into :class:`~hydrofrac.run.RunOptions`; the physical ones are stored with the
+checkpoint, so that a restart with other physics is refused.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from pathlib import Path
+
+from .run import RunOptions
+from .solver import MAX_DEGREE
+
+#: options that do not change the computed result (a restart may change them)
+RUN_ONLY = {"out", "t_end", "frames", "restart", "checkpoint_every", "checkpoint_steps", "verbose"}
+
+
+def scenario_parser(description: str) -> argparse.ArgumentParser:
+    """The command-line options every scenario script accepts."""
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--quick", action="store_true", help="seconds-long size (used by the tests)")
+    p.add_argument("--out", default=None, help="output folder (default results/<scenario>)")
+    p.add_argument("--degree", "-p", type=int, default=None, help=f"polynomial degree 1..{MAX_DEGREE}")
+    p.add_argument("--t-end", type=float, default=None, help="simulated time [s]")
+    p.add_argument("--frames", type=int, default=None, help="number of output frames, evenly spaced in time")
+    p.add_argument("--restart", action="store_true", help="continue from the last checkpoint in --out")
+    p.add_argument("--checkpoint-every", type=float, default=120.0,
+                   help="wall time between checkpoints [s] (default 120)")
+    p.add_argument("--checkpoint-steps", type=int, default=None,
+                   help="also checkpoint every N steps (default: by wall time only)")
+    p.add_argument("--verbose", action="store_true", help="show the form compiler's messages")
+    return p
+
+
+def _pick(value, default, quick):
+    """The user's value if given, else the scenario's default ((full, quick) or one value)."""
+    if value is not None:
+        return value
+    if isinstance(default, tuple):
+        return default[1] if quick else default[0]
+    return default
+
+
+def parse(parser: argparse.ArgumentParser, argv, name: str, degree, t_end, frames):
+    """Parse and validate; fill ``degree``, ``t_end``, ``frames`` and ``out`` (results/<name>;
+    ``name`` may be a function of the parsed options) with the scenario's defaults where the
+    user gave none.  Exits with argparse's message (status 2)
+    on a bad value, before any set-up."""
+    args = parser.parse_args(argv)
+    args.degree = _pick(args.degree, degree, args.quick)
+    args.t_end = _pick(args.t_end, t_end, args.quick)
+    args.frames = _pick(args.frames, frames, args.quick)
+    if not 1 <= args.degree <= MAX_DEGREE:
+        parser.error(f"--degree must be in 1..{MAX_DEGREE}; got {args.degree}")
+    if not (math.isfinite(args.t_end) and args.t_end > 0):
+        parser.error(f"--t-end must be a positive time in seconds; got {args.t_end}")
+    if args.frames < 1:
+        parser.error(f"--frames must be >= 1; got {args.frames}")
+    if not (math.isfinite(args.checkpoint_every) and args.checkpoint_every > 0):
+        parser.error(f"--checkpoint-every must be > 0 s; got {args.checkpoint_every}")
+    if args.checkpoint_steps is not None and args.checkpoint_steps < 1:
+        parser.error(f"--checkpoint-steps must be >= 1; got {args.checkpoint_steps}")
+    if args.out is None:
+        args.out = f"results/{name(args) if callable(name) else name}"
+    check_out(parser, args.out)
+    from . import compat
+    compat.quiet_form_compiler(not args.verbose)
+    return args
+
+
+def check_out(parser, out: str):
+    """The output folder is a folder we can write (or can be made), or exit with the fix."""
+    if not str(out).strip():
+        parser.error("--out must name a folder; got an empty string")
+    p = Path(out)
+    if p.exists() and not p.is_dir():
+        parser.error(f"--out {out} is a file, not a folder; give a folder")
+    q = p
+    while not q.exists():
+        q = q.parent
+    if not q.is_dir() or not os.access(q, os.W_OK | os.X_OK):
+        parser.error(f"--out {out}: cannot write in {q}; give a folder you can write")
+
+
+def run_options(args, history_every: int = 1) -> RunOptions:
+    """:class:`~hydrofrac.run.RunOptions` of parsed scenario options."""
+    params = {k: v for k, v in sorted(vars(args).items()) if k not in RUN_ONLY}
+    return RunOptions(t_end=args.t_end, out=args.out, frames=args.frames, restart=args.restart,
+                      checkpoint_wall=args.checkpoint_every, checkpoint_steps=args.checkpoint_steps,
+                      history_every=history_every, params=params)
+
+
+# ----------------------------------------------------------------------------- free growth
+def add_growth_arguments(parser):
+    """The free-growth options shared by the wellbore scenarios (intersection, re-fracture):
+    ``--growth`` (the default) / ``--premeshed`` and the criterion's parameters, in
+    crack-facet sizes h."""
+    g = parser.add_mutually_exclusive_group()
+    g.add_argument("--growth", dest="growth", action="store_true", default=True,
+                   help="free crack growth from the perforation tips with Gmsh remeshing (default)")
+    g.add_argument("--premeshed", dest="growth", action="store_false",
+                   help="grow along pre-meshed radial potential paths instead (no remeshing)")
+    parser.add_argument("--growth-r", type=float, default=4.0,
+                        help="sampling distance of the growth criterion ahead of a tip, in crack facet sizes h "
+                             "(default 4)")
+    parser.add_argument("--growth-beta", type=float, default=0.0,
+                        help="shear factor beta of the sampled growth criterion (default 0: the largest tensile "
+                             "normal traction; 1 = the damage law's, which follows the shear of the compressive "
+                             "pressure waves around the wellbore: see docs/studies/growth.md)")
+    parser.add_argument("--growth-direction", choices=("sampled", "cod"), default="cod",
+                        help="'cod' (default) takes the sampled onset and the angle of the singular near-tip "
+                             "field, K_II/K_I from the crack's slip and opening within r of the tip; 'sampled' "
+                             "grows towards the maximum of the sampled criterion (kinks: docs/studies/growth.md)")
+    parser.add_argument("--growth-cod-window", type=float, default=None,
+                        help="with --growth-direction cod: distance behind the tip over which opening and slip "
+                             "are correlated, in facet sizes h (default: the sampling distance r)")
+    parser.add_argument("--growth-cod-relax", type=float, default=0.5,
+                        help="with --growth-direction cod: fraction of the near-tip angle taken per extension "
+                             "(default 0.5; 1 zigzags beyond ~1 m in the full-size intersection: "
+                             "docs/studies/growth.md)")
+    parser.add_argument("--growth-da", type=float, default=2.0,
+                        help="length of a growth step, in crack facet sizes h (default 2)")
+    parser.add_argument("--growth-max-radius", type=float, default=None,
+                        help="tips stop at this distance from the wellbore centre [m] (default: only the outer "
+                             "boundary stops them)")
+
+
+def check_growth_arguments(parser, args):
+    """Reject bad growth options before any meshing (argparse's error: exit 2, with the fix)."""
+    if not args.growth_r > 0:
+        parser.error(f"--growth-r must be > 0 (a distance in facet sizes); got {args.growth_r}")
+    if not args.growth_da > 0:
+        parser.error(f"--growth-da must be > 0 (a length in facet sizes); got {args.growth_da}")
+    if not args.growth_beta >= 0:
+        parser.error(f"--growth-beta must be >= 0; got {args.growth_beta}")
+    if not 0 < args.growth_cod_relax <= 1:
+        parser.error(f"--growth-cod-relax must be in (0, 1]; got {args.growth_cod_relax}")
+    if args.growth_max_radius is not None and not args.growth_max_radius > 0:
+        parser.error(f"--growth-max-radius must be > 0 m; got {args.growth_max_radius}")
+    if args.growth_cod_window is not None and not args.growth_cod_window > 0:
+        parser.error(f"--growth-cod-window must be > 0 (a distance in facet sizes); got {args.growth_cod_window}")

@@ -1,0 +1,111 @@
+"""The crack network as geometry: cracks as polylines, their junctions and their tips.
+
+One :class:`CrackNetwork` describes what meshing, growth, hydraulics and output need to
+know about the cracks of a problem without looking at the mesh:
+
+* every crack is a polyline with its facet tag and its kind (``perforation``, ``natural``
+  or ``path``, a bonded potential or grown crack);
+* a *junction* is a crack end that lies on another crack (or on itself: a tip that curled
+  back), where the mesh shares the vertex and the hydraulic network merges (docs/model.md §5);
+* a *tip* is every other crack end away from the wellbore wall; a tip is *active* while it
+  may still grow (growth paths) and inactive otherwise (natural-fracture ends, arrested or
+  joined tips).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import List, Sequence, Tuple
+
+import numpy as np
+
+KINDS = ("perforation", "natural", "path")
+
+
+@dataclass
+class CrackLine:
+    """One crack: facet tag, kind (one of :data:`KINDS`) and its polyline (k >= 2 points)."""
+
+    tag: int
+    kind: str
+    points: np.ndarray
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(f"crack {self.tag}: kind must be one of {KINDS}; got {self.kind!r}")
+        self.points = np.asarray(self.points, dtype=float).reshape(-1, 2)
+        if len(self.points) < 2:
+            raise ValueError(f"crack {self.tag}: a polyline needs at least 2 points; got {len(self.points)}")
+
+    @property
+    def length(self) -> float:
+        return float(np.linalg.norm(np.diff(self.points, axis=0), axis=1).sum())
+
+
+@dataclass
+class TipEnd:
+    """A free crack end: which crack and end (0 first point, -1 last), position, outward
+    direction (unit) and whether it may still grow."""
+
+    tag: int
+    end: int
+    point: np.ndarray
+    direction: np.ndarray
+    active: bool
+
+
+@dataclass
+class CrackNetwork:
+    """Cracks, junctions and tips of one geometry (see the module docstring)."""
+
+    cracks: List[CrackLine] = field(default_factory=list)
+    junctions: List[Tuple[np.ndarray, Tuple[int, int]]] = field(default_factory=list)
+    tips: List[TipEnd] = field(default_factory=list)
+
+    @classmethod
+    def from_cracks(cls, cracks: Sequence[CrackLine], wellbore_radius: float = 0.0, growing: Sequence[int] = (),
+                    tol: float = 1e-7) -> "CrackNetwork":
+        """Find junctions and tips of ``cracks``.  Ends within ``tol`` of the wellbore wall
+        (radius ``wellbore_radius`` about the origin) are neither; the last end of a crack
+        tagged in ``growing`` is an active tip unless it is a junction."""
+        net = cls(list(cracks))
+        for c in net.cracks:
+            for end in (0, -1):
+                p = c.points[end]
+                if wellbore_radius > 0 and abs(np.hypot(*p) - wellbore_radius) < tol:
+                    continue
+                other = net._crack_at(p, c, end, tol)
+                if other is not None:
+                    net.junctions.append((p.copy(), (c.tag, other)))
+                    continue
+                q = c.points[1] if end == 0 else c.points[-2]
+                d = (p - q) / max(np.linalg.norm(p - q), 1e-300)
+                net.tips.append(TipEnd(c.tag, end, p.copy(), d, active=(c.tag in growing and end == -1)))
+        return net
+
+    def _crack_at(self, p, me: CrackLine, end: int, tol: float):
+        """Tag of a crack whose polyline passes within ``tol`` of ``p`` (for ``me``, only its
+        segments short of the end itself), or None."""
+        for c in self.cracks:
+            pts = c.points
+            if c is me:
+                pts = pts[:-2] if end == -1 else pts[2:]
+                if len(pts) < 2:
+                    continue
+            a, b = pts[:-1], pts[1:]
+            e = b - a
+            u = np.clip(np.einsum("ij,ij->i", p - a, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0, 1)
+            if np.min(np.linalg.norm(a + u[:, None] * e - p, axis=1)) < tol:
+                return c.tag
+        return None
+
+    def counts(self) -> dict:
+        """What a summary reports: cracks, junctions, tips and active tips."""
+        return {"cracks": len(self.cracks), "junctions": len(self.junctions), "tips": len(self.tips),
+                "active_tips": sum(t.active for t in self.tips)}
+
+    def as_dict(self) -> dict:
+        """JSON-able description (``growth.json``, checkpoints)."""
+        return {"cracks": [{"tag": c.tag, "kind": c.kind, "points": c.points.tolist()} for c in self.cracks],
+                "junctions": [{"point": p.tolist(), "tags": list(t)} for p, t in self.junctions],
+                "tips": [{"tag": t.tag, "end": t.end, "point": t.point.tolist(), "direction": t.direction.tolist(),
+                          "active": bool(t.active)} for t in self.tips]}

@@ -1,0 +1,91 @@
+"""The closing summary of a run: what it computed, how fast, how accurately (``summary.json``)."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Dict
+
+import numpy as np
+
+from . import compat
+
+
+def build_summary(problem, name: str, wall: float, work: float, steps_run: int, remesh_info, accuracy: Dict,
+                  outputs: Dict) -> Dict:
+    """The summary dictionary (collective: the time split and unit costs are reduced)."""
+    solver, comm = problem.solver, problem.comm
+    summary = problem.summary()
+    summary.update({
+        "scenario": name,
+        "wall_time_s": wall,
+        "setup_time_s": solver.timers.t.get("setup", 0.0),
+        "dof_stages_per_s": work / wall if wall > 0 else float("nan"),
+        "dof_stages_per_s_per_rank": work / wall / comm.size if wall > 0 else float("nan"),
+        "energy": solver.energy.as_dict(),
+        "time_split_s": {k: comm.allreduce(v, op=compat.MPI.MAX) for k, v in solver.timers.t.items()},
+        "output": outputs,
+    })
+    summary["cost_us"] = unit_costs(solver, steps_run)
+    if remesh_info is not None:
+        t_rm = solver.timers.t.get("remesh", 0.0)
+        summary["remeshing"] = {"remeshes": remesh_info, "wall_s": t_rm, "share": t_rm / wall if wall > 0 else 0.0}
+    if accuracy:
+        summary["accuracy"] = accuracy
+    return summary
+
+
+def write_summary(summary: Dict, out: Path, comm):
+    if comm.rank == 0:
+        with open(Path(out) / "summary.json", "w") as f:
+            json.dump(summary, f, indent=2, default=float)
+        print_summary(summary)
+
+
+def unit_costs(solver, steps: int) -> Dict[str, float]:
+    """Wall time per unit of work, summed over ranks [µs]: the bulk operator per
+    cell*stage and the interface kernel per crack facet*stage (docs/benchmarks.md)."""
+    comm = solver.comm
+    stages = solver.num_stages * max(steps, 1)
+    t = solver.timers.t
+    cells = compat.num_cells_local(solver.mesh)
+    facets = sum(e.facets.size for e in solver.extensions if hasattr(e, "facets"))
+    loc = np.array([t.get("bulk operator", 0.0), cells, t.get("interface kernel", 0.0), facets], dtype=float)
+    tot = np.zeros(4)
+    comm.Allreduce(loc, tot, op=compat.MPI.SUM)
+    out = {"bulk_per_cell_stage": 1e6 * tot[0] / max(tot[1] * stages, 1)}
+    if tot[3] > 0:
+        out["interface_per_facet_stage"] = 1e6 * tot[2] / (tot[3] * stages)
+        out["crack_facets"] = int(tot[3])
+    return out
+
+
+def print_summary(s: Dict, file=sys.stdout):
+    e = s["energy"]
+    lines = [
+        f"[hydrofrac] ---- summary: {s['scenario']} ----",
+        f"  mesh        {s['cells']} cells, {s['dofs']} DOFs, p = {s['degree']}, {s['ranks']} rank(s)",
+        f"  time        {s['steps']} steps of dt = {s['dt']:.4g} s ({s['scheme']}, CFL {s['cfl']:.3g}) "
+        f"to t = {s['simulated_time']:.6g} s",
+        f"  speed       wall {s['wall_time_s']:.2f} s (+ setup {s['setup_time_s']:.2f} s), "
+        f"{s['dof_stages_per_s']:.3g} DOF*stages/s ({s['dof_stages_per_s_per_rank']:.3g} per rank)",
+        f"  energy      kinetic {e['kinetic']:.5g}, strain {e['strain']:.5g}, work in {e['work_in']:.5g}, "
+        f"radiated {e['radiated']:.5g}, dissipated (flux {e['dissipated_flux']:.4g}, friction "
+        f"{e['dissipated_friction']:.4g}, damage {e['dissipated_damage']:.4g}) J/m",
+        f"  balance     error {e['balance_error']:.3g} J/m ({e['balance_error_relative']:.2e} relative)",
+        "  time split  " + ", ".join(f"{k} {v:.2f} s" for k, v in s["time_split_s"].items()),
+    ]
+    c = s.get("cost_us")
+    if c:
+        line = f"  unit cost   bulk operator {c['bulk_per_cell_stage']:.3g} us per cell*stage"
+        if "interface_per_facet_stage" in c:
+            line += (f", interface kernel {c['interface_per_facet_stage']:.3g} us per crack facet*stage "
+                     f"({c['crack_facets']} crack facets)")
+        lines.append(line)
+    if "remeshing" in s:
+        r = s["remeshing"]
+        lines.append(f"  remeshing   {r['remeshes']} remeshes, {r['wall_s']:.2f} s ({100 * r['share']:.0f}% of the wall time)")
+    for k, v in s.get("accuracy", {}).items():
+        lines.append(f"  accuracy    {k} = {v:.4g}" if isinstance(v, float) else f"  accuracy    {k} = {v}")
+    lines.append(f"  output      {s['output']['paraview']} (ParaView), {s['output']['history']}")
+    print("\n".join(lines), file=file, flush=True)
