@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import ufl
 
+from hydrofrac.material import plane_strain_kappa
+
 #: component layout of U
 NCOMP = 5
 
@@ -31,7 +33,7 @@ def fields(U):
 
 def compliance(sigma, lam, mu):
     r"""Plane-strain compliance :math:`C^{-1}:\sigma = (\sigma - \frac{\lambda}{2(\lambda+\mu)}\mathrm{tr}\,\sigma\, I)/(2\mu)`."""
-    return (sigma - lam / (2 * (lam + mu)) * ufl.tr(sigma) * ufl.Identity(2)) / (2 * mu)
+    return (sigma - plane_strain_kappa(lam, mu) * ufl.tr(sigma) * ufl.Identity(2)) / (2 * mu)
 
 
 def impedances(rho, lam, mu):

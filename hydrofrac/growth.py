@@ -22,6 +22,7 @@ import numpy as np
 from mpi4py import MPI
 
 from . import compat
+from . import riemann as rm
 
 
 @dataclass(frozen=True)
@@ -125,7 +126,7 @@ def effective_stress_profile(solver, tip, direction, params: GrowthParams):
     tr = np.einsum("mij,mj->mi", sig, n)
     sn = np.einsum("mi,mi->m", tr, n)
     st = np.einsum("mi,mi->m", tr, t)
-    return theta, np.sqrt(np.maximum(sn, 0.0) ** 2 + (params.beta * st) ** 2)
+    return theta, rm.effective_stress(np.stack([sn, st], axis=-1), params.beta)
 
 
 def growth_direction(solver, tip, direction, params: GrowthParams):
@@ -177,7 +178,7 @@ def near_tip_direction(K_I, K_II, beta=1.0, n=20001):
     c = np.cos(th / 2)
     stt = c * (K_I * c * c - 1.5 * K_II * np.sin(th))
     trt = 0.5 * c * (K_I * np.sin(th) + K_II * (3 * np.cos(th) - 1))
-    s = np.sqrt(np.maximum(stt, 0) ** 2 + (beta * trt) ** 2)
+    s = rm.effective_stress(np.stack([stt, trt], axis=-1), beta)
     return argmax_parabola(th, s)[0]
 
 

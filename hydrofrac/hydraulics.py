@@ -27,6 +27,7 @@ import numpy as np
 from mpi4py import MPI
 
 from . import compat
+from . import riemann as rm
 from .boundary import PiecewiseLinear
 
 
@@ -202,9 +203,7 @@ class Hydraulics:
         fp_q[~self.loaded] = 0.0
         self.fp_q = fp_q
         # the separation law per Gauss point until the next update (eq. 16)
-        self._S0_unit = np.zeros(fp_q.shape + (2,))
-        self._S0_unit[..., 0] = np.where(self.loaded[:, None], -fp_q, 0.0)
-        self._cS = np.ascontiguousarray(np.where(self.loaded[:, None], -(1.0 - fp_q), 0.0))
+        self._S0_unit, self._cS = rm.hydraulic_law(fp_q, self.loaded)
 
     def separation_traction(self, t):
         """Eq. (16) on loaded facets, S = 0 elsewhere, as the affine law of the interface

@@ -453,8 +453,8 @@ class Interface:
             return {"friction": 0.0, "damage": 0.0, "flux": 0.0, "work_in": 0.0}
         wq = self.weights.reshape(-1)
         jump = T["vm_star"] - T["vp_star"]
-        a_S = T["D"] * (1 - T["eta"])
-        sep_rate = a_S * 2.0 / np.repeat(self.Zt[:, 0], self.nq) * (T["s_B"][:, 0] - T["S"][:, 0])
+        a_S = rm.mode_fractions(T["D"], T["eta"], T["gamma"])[:, 3]
+        sep_rate = a_S * rm.separation_jump(T["s_B"][:, 0], T["S"][:, 0], np.repeat(self.Zt[:, 0], self.nq))
         # tractions relative to the initial stress (the energy is measured relative to it)
         n = np.repeat(self.n, self.nq, axis=0)
         s0 = self.solver.sigma0
@@ -476,7 +476,7 @@ class Interface:
         if not T:
             return {}
         D, eta, gamma = T["D"], T["eta"], T["gamma"]
-        frac = np.stack([1 - D, D * eta * gamma, D * eta * (1 - gamma), D * (1 - eta)], axis=1)
+        frac = rm.mode_fractions(D, eta, gamma)
         return {
             "D": self.state[0], "eta": eta.reshape(nf, nq), "gamma": gamma.reshape(nf, nq),
             "opening": self.state[1], "slip": self.state[2],

@@ -175,6 +175,7 @@ def bulk_part(solver, extra: Optional[Dict[str, np.ndarray]] = None) -> Part:
     material index and MPI rank.
     """
     from . import compat
+    from .material import plane_strain_kappa
     p = solver.degree
     nloc = compat.num_cells_local(solver.mesh)
     X = lagrange_lattice(p)
@@ -192,9 +193,9 @@ def bulk_part(solver, extra: Optional[Dict[str, np.ndarray]] = None) -> Part:
     s0 = solver.sigma0
     v = vals[:, :2]
     sxx, syy, sxy = vals[:, 2], vals[:, 3], vals[:, 4]
-    szz = lam / (2 * (lam + mu)) * (sxx + syy)
+    kappa = plane_strain_kappa(lam, mu)
+    szz = kappa * (sxx + syy)
     dxx, dyy, dxy = sxx - s0[0, 0], syy - s0[1, 1], sxy - s0[0, 1]
-    kappa = lam / (2 * (lam + mu))
     w_strain = 0.5 / (2 * mu) * (dxx ** 2 + dyy ** 2 + 2 * dxy ** 2 - kappa * (dxx + dyy) ** 2)
     w_kin = 0.5 * rho * (v ** 2).sum(axis=1)
     pd = {

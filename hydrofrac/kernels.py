@@ -21,7 +21,8 @@ import numpy as np
 
 from ._jit import njit, prefetch
 from .riemann import (bonded_pt, combine_point, damage_rate_pt, effective_stress_pt, eta_exact_pt,
-                      eta_regularized_pt, macaulay_pt, target_damage_pt)
+                      eta_regularized_pt, macaulay_pt, penalty_traction_pt, separation_jump_pt,
+                      target_damage_pt)
 
 
 # Packed per-facet records (built once by :func:`pack_facets`): the stage streams through
@@ -83,8 +84,8 @@ def _point(X, P, I, f, q, nq, nb, D, delta, S0, cS, S_scale, regularized, delta0
     Sn = S_scale * S0[f, q, 0] + cS[f, q] * macaulay_pt(-sBn)
     St = S_scale * S0[f, q, 1]
     if kappa > 0.0:
-        Sn -= kappa * macaulay_pt(-delta[f, q])
-    w = 2.0 / P[f, _ZT] * (sBn - Sn) / P[f, _VS]  # [[v_S^1]] / v~ (eqs. 11-12)
+        Sn += penalty_traction_pt(kappa, delta[f, q])
+    w = separation_jump_pt(sBn, Sn, P[f, _ZT]) / P[f, _VS]  # [[v_S^1]] / v~ (eqs. 11-12)
     dn = delta[f, q] / P[f, _DS]
     if kappa > 0.0:
         e = 0.0

@@ -11,6 +11,13 @@ import numbers
 from dataclasses import dataclass, field
 
 
+def plane_strain_kappa(lam, mu):
+    """kappa = lambda / (2 (lambda + mu)): the plane-strain compliance is
+    C^{-1}:sigma = (sigma - kappa tr(sigma) I) / (2 mu), and s_zz = kappa (s_xx + s_yy) (model §1).
+    Works on numbers, numpy arrays and UFL expressions."""
+    return lam / (2 * (lam + mu))
+
+
 @dataclass(frozen=True)
 class Material:
     """Isotropic elastic solid in plane strain.

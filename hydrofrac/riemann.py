@@ -92,6 +92,20 @@ def reduced_impedance_pt(Zp, Zm):
 
 
 @njit
+def penalty_traction_pt(kappa, delta_n):
+    """Normal traction of the penalty baseline (contact by interpenetration, no Riemann
+    contact mode): -kappa <-delta> [Pa], added to S^1."""
+    return -kappa * macaulay_pt(-delta_n)
+
+
+@njit
+def separation_jump_pt(sB_n, S_n, Zt_n):
+    """Normal velocity jump of the separation mode, [[v_S^1]] = (2 / Z~^1)(s_B^1 - S^1)
+    (eqs. 11-12)."""
+    return 2.0 / Zt_n * (sB_n - S_n)
+
+
+@njit
 def effective_stress_pt(sB_n, sB_t, beta):
     """s_eff = sqrt(<s_B^1>^2 + (beta |s_B^2|)^2)."""
     a = macaulay_pt(sB_n)
@@ -248,9 +262,33 @@ def combine(D, eta, gamma, bonded_sol, slip_sol, sep_sol):
 
 
 def effective_stress(s_B, beta):
-    """s_eff = sqrt(<s_B^1>^2 + (beta |s_B^2|)^2)."""
+    """s_eff = sqrt(<s_B^1>^2 + (beta |s_B^2|)^2) (eq. 10); ``s_B`` (..., 2) in local
+    (normal, tangential) components."""
     s_B = np.asarray(s_B, dtype=float)
-    return _effective_stress_u(s_B[:, 0], s_B[:, 1], beta)
+    return _effective_stress_u(s_B[..., 0], s_B[..., 1], beta)
+
+
+def separation_jump(sB_n, S_n, Zt_n):
+    """[[v_S^1]] = (2 / Z~^1)(s_B^1 - S^1) (eqs. 11-12), broadcasting."""
+    return _separation_jump_u(sB_n, S_n, Zt_n)
+
+
+def mode_fractions(D, eta, gamma):
+    """The four contact-mode fractions (eqs. 6-7), (..., 4): bonded 1 - D, stick D eta gamma,
+    slip D eta (1 - gamma), separation D (1 - eta); they add up to one."""
+    D, eta, gamma = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (D, eta, gamma)))
+    return np.stack([1 - D, D * eta * gamma, D * eta * (1 - gamma), D * (1 - eta)], axis=-1)
+
+
+def hydraulic_law(fp, loaded):
+    """Eq. (16) as the affine separation law of the interface kernel,
+    S^1 = p_h S0 + cS <-s_B^1>, S^2 = 0: on loaded facets S^1 = -f_p p_h - (1 - f_p) <-s_B^1>,
+    elsewhere S = 0.  ``fp`` (nf, nq), ``loaded`` (nf,); returns (S0 (nf, nq, 2), cS (nf, nq))."""
+    fp = np.asarray(fp, dtype=float)
+    on = np.asarray(loaded, dtype=bool)[:, None]
+    S0 = np.zeros(fp.shape + (2,))
+    S0[..., 0] = np.where(on, -fp, 0.0)
+    return S0, np.ascontiguousarray(np.where(on, -(1.0 - fp), 0.0))
 
 
 def target_damage(s_eff, s_onset, s_bar):
@@ -294,6 +332,7 @@ _F2, _F3, _F4 = ("float64(float64, float64)",), ("float64(float64, float64, floa
 _friction_traction_u = vectorize(friction_traction_pt, _F3)
 _stick_u = vectorize(stick_pt, _F3)
 _reduced_impedance_u = vectorize(reduced_impedance_pt, _F2)
+_separation_jump_u = vectorize(separation_jump_pt, _F3)
 _aB_u = vectorize(_aB_pt, _F3)
 _aSL_u = vectorize(_aSL_pt, _F3)
 _aS_u = vectorize(_aS_pt, _F3)

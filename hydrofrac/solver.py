@@ -30,7 +30,7 @@ from ._jit import njit
 from .boundary import RADIATING, Absorbing, BoundaryCondition, OuterState, Traction, Velocity
 from .element import CellGeometry, reference_element
 from .forms import elastodynamics as ef
-from .material import Material
+from .material import Material, plane_strain_kappa
 
 #: Documented CFL constant C per scheme: dt = C h_min / ((2p + 1) c_d), h_min = smallest
 #: inscribed-circle diameter over the cells (with each cell's c_d).
@@ -490,7 +490,7 @@ class Solver:
         """
         nloc = compat.num_cells_local(self.mesh)
         Mref_inv = np.linalg.inv(self.ref.mass())
-        kappa = self.lam_cell / (2 * (self.lam_cell + self.mu_cell))
+        kappa = plane_strain_kappa(self.lam_cell, self.mu_cell)
         B = np.zeros((self.lam_cell.size, 5, 5))
         B[:, 0, 0] = B[:, 1, 1] = self.rho_cell
         c = 1.0 / (2 * self.mu_cell)

@@ -25,6 +25,8 @@ from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
+from hydrofrac.riemann import mode_fractions
+
 from .snapshot import find_pvd, read_frames
 
 #: contact modes of the ``mode`` field (argmax of the mode fractions, hydrofrac.interface)
@@ -238,9 +240,9 @@ def crack_frame_statistics(grid) -> Dict[str, float]:
             out[key] = float((segment_values(grid, name) * ell).sum())
     if "eta" in grid.point_data and "gamma" in grid.point_data:
         eta, gamma = segment_values(grid, "eta"), segment_values(grid, "gamma")
-        parts = (1 - D, D * eta * gamma, D * eta * (1 - gamma), D * (1 - eta))
-        for mode, frac in zip(MODES, parts):
-            out[f"fraction_{mode}"] = float((frac * ell).sum() / max(total, 1e-300))
+        parts = mode_fractions(D, eta, gamma)
+        for i, mode in enumerate(MODES):
+            out[f"fraction_{mode}"] = float((parts[..., i] * ell).sum() / max(total, 1e-300))
     delta = np.asarray(grid.point_data["opening"])
     out["opening_max"] = float(delta.max())
     out["opening_min"] = float(delta.min())

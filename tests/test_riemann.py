@@ -405,3 +405,24 @@ def test_bonded_jump_form_equals_bonded_solution():
         want = (sB - sp, vB - vp, sB - sm, vB - vm)
         assert np.allclose(got[0::2], want[0::2], rtol=1e-12, atol=1e-6), (got, want)  # stresses ~1e6 Pa
         assert np.allclose(got[1::2], want[1::2], rtol=1e-12, atol=1e-12), (got, want)  # velocities ~1 m/s
+
+
+def test_separation_jump_and_mode_fractions():
+    """The separation jump of eqs. 11-12, (2/Z~)(s_B - S), equals v- - v+ of the separation
+    solution itself (each side on its own characteristic); the four mode fractions add up
+    to one and bonded + stick is the bonded weight of the mixture."""
+    rng = np.random.default_rng(3)
+    vp, vm, sp, sm = rng.normal(size=(4, 50, 2))
+    Zp, Zm = rng.uniform(1e6, 1e7, size=(2, 50, 2))
+    S = rng.normal(size=(50, 2))
+    sB, _ = rm.bonded(vp, vm, sp, sm, Zp, Zm)
+    _, v_p, v_m = rm.separation(vp, vm, sp, sm, Zp, Zm, S)
+    Zt = rm.reduced_impedance(Zp, Zm)
+    np.testing.assert_allclose(rm.separation_jump(sB[:, 0], S[:, 0], Zt[:, 0]), v_m[:, 0] - v_p[:, 0], rtol=1e-10)
+    D, eta, gamma = rng.uniform(size=(3, 50))
+    f = rm.mode_fractions(D, eta, gamma)
+    np.testing.assert_allclose(f.sum(axis=-1), 1.0, rtol=1e-14)
+    aB, aSL, aS = rm.mode_weights(D, eta, gamma)
+    np.testing.assert_allclose(f[:, 0] + f[:, 1], aB, rtol=1e-14)
+    np.testing.assert_allclose(f[:, 2], aSL, rtol=1e-14)
+    np.testing.assert_allclose(f[:, 3], aS, rtol=1e-14)
