@@ -18,7 +18,7 @@ from .run import RunOptions
 from .solver import MAX_DEGREE
 
 #: options that do not change the computed result (a restart may change them)
-RUN_ONLY = {"out", "t_end", "frames", "restart", "checkpoint_every", "checkpoint_steps", "verbose"}
+RUN_ONLY = {"out", "t_end", "frames", "restart", "checkpoint_every", "checkpoint_steps", "verbose", "probes"}
 
 
 def scenario_parser(description: str) -> argparse.ArgumentParser:
@@ -34,6 +34,8 @@ def scenario_parser(description: str) -> argparse.ArgumentParser:
                    help="wall time between checkpoints [s] (default 120)")
     p.add_argument("--checkpoint-steps", type=int, default=None,
                    help="also checkpoint every N steps (default: by wall time only)")
+    p.add_argument("--probes", default=None,
+                   help="points 'x,y;x,y;...' [m] whose velocity and stress go into probes.csv")
     p.add_argument("--verbose", action="store_true", help="show the form compiler's messages")
     return p
 
@@ -66,6 +68,12 @@ def parse(parser: argparse.ArgumentParser, argv, name: str, degree, t_end, frame
         parser.error(f"--checkpoint-every must be > 0 s; got {args.checkpoint_every}")
     if args.checkpoint_steps is not None and args.checkpoint_steps < 1:
         parser.error(f"--checkpoint-steps must be >= 1; got {args.checkpoint_steps}")
+    if args.probes is not None:
+        from .probes import parse_points
+        try:
+            args.probes = parse_points(args.probes).tolist()
+        except ValueError as err:
+            parser.error(f"--probes: {err}")
     if args.out is None:
         args.out = f"results/{name(args) if callable(name) else name}"
     check_out(parser, args.out)
@@ -93,7 +101,7 @@ def run_options(args, history_every: int = 1) -> RunOptions:
     params = {k: v for k, v in sorted(vars(args).items()) if k not in RUN_ONLY}
     return RunOptions(t_end=args.t_end, out=args.out, frames=args.frames, restart=args.restart,
                       checkpoint_wall=args.checkpoint_every, checkpoint_steps=args.checkpoint_steps,
-                      history_every=history_every, params=params)
+                      history_every=history_every, params=params, probes=args.probes)
 
 
 # ----------------------------------------------------------------------------- free growth

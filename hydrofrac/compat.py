@@ -319,6 +319,22 @@ def eval_function(u, points, cells):
     return u.eval(pts, np.asarray(cells, dtype=np.int32))
 
 
+def cells_containing(mesh, points):
+    """(point index, local cell) pairs of every cell (owned or ghost) that contains one of the
+    ``points`` (m, 2), by DOLFINx's bounding-box tree (0.9: ``bb_tree`` and the same
+    ``compute_*`` calls).  The tree is built once per mesh."""
+    import dolfinx.geometry
+    tree = getattr(mesh, "_hydrofrac_bb_tree", None)
+    if tree is None:
+        tree = dolfinx.geometry.BoundingBoxTree(mesh, mesh.topology.dim)
+        mesh._hydrofrac_bb_tree = tree
+    X = np.zeros((len(points), 3))
+    X[:, :2] = points
+    hits = dolfinx.geometry.compute_colliding_cells(mesh, dolfinx.geometry.compute_collisions(tree, X), X)
+    offsets = np.asarray(hits.offsets)
+    return np.repeat(np.arange(len(points)), np.diff(offsets)), np.asarray(hits.array, dtype=np.int64)
+
+
 def facet_cells(mesh, facets):
     """The first cell of each facet (the only one for an exterior facet)."""
     tdim = mesh.topology.dim

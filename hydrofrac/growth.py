@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from mpi4py import MPI
 
-from . import compat
 from . import riemann as rm
+from .probes import stress_at
 
 
 @dataclass(frozen=True)
@@ -76,42 +76,6 @@ class GrowthParams:
             raise ValueError(f"growth cod_window must be > 0 m (or None for r); got {self.cod_window}")
         if not 0 < self.cod_relax <= 1:
             raise ValueError(f"growth cod_relax must be in (0, 1]; got {self.cod_relax}")
-
-
-def stress_at(solver, points):
-    """Total stress (m, 2, 2) of the solver's state at physical points (m, 2), on all ranks.
-    A point on a facet (e.g. on a crack path ahead of a tip) takes the mean of the cells that
-    contain it, so the result does not depend on cell numbering or partition; NaN where no
-    cell contains the point."""
-    g = solver.geometry
-    nloc = compat.num_cells_local(solver.mesh)
-    X = np.asarray(points, dtype=float).reshape(-1, 2)
-    out = np.zeros((X.shape[0], 3))
-    found = np.zeros(X.shape[0])
-    U = solver.x.array_r.reshape(-1, 5)
-    dofs = compat.cell_dofs(solver.V)
-    # candidate cells: those whose bounding box meets the points' bounding box
-    vmin, vmax = g.vertices[:nloc].min(axis=1), g.vertices[:nloc].max(axis=1)
-    pad = 1e-9 * max(1.0, float(np.abs(X).max(initial=0.0)))
-    near = np.flatnonzero(np.all(vmax >= X.min(axis=0, initial=np.inf) - pad, axis=1)
-                          & np.all(vmin <= X.max(axis=0, initial=-np.inf) + pad, axis=1))
-    Jn, x0n = g.Jinv[near], g.x0[near]
-    for i, x in enumerate(X):
-        ref = np.einsum("cij,cj->ci", Jn, x - x0n)
-        lam = np.c_[1 - ref.sum(axis=1), ref]
-        for k in np.flatnonzero(lam.min(axis=1) >= -1e-10):
-            c = near[k]
-            phi = solver.ref.tabulate(ref[k:k + 1])[0]
-            out[i] += (phi @ U[dofs[c]])[2:5]
-            found[i] += 1.0
-    comm = solver.comm
-    tot = np.zeros_like(out)
-    cnt = np.zeros_like(found)
-    comm.Allreduce(out, tot, op=MPI.SUM)
-    comm.Allreduce(found, cnt, op=MPI.SUM)
-    with np.errstate(invalid="ignore"):
-        s = tot / cnt[:, None]
-    return np.stack([np.stack([s[:, 0], s[:, 2]], -1), np.stack([s[:, 2], s[:, 1]], -1)], axis=1)
 
 
 def effective_stress_profile(solver, tip, direction, params: GrowthParams):

@@ -87,6 +87,18 @@ class Problem:
             p.update(self.interface.part(self.hydraulics.fields() if self.hydraulics is not None else None))
         return p
 
+    def probe(self, points):
+        """(m, 5): v_x, v_y, s_xx, s_yy, s_xy at physical points (m, 2) (collective;
+        :func:`hydrofrac.probes.field_at`)."""
+        from .probes import field_at
+        return field_at(self.solver, points)
+
+    def crack_probe(self, positions):
+        """(m, 7): opening, slip, tractions, D, eta, f_p at (crack tag, arc length) positions
+        (collective; :func:`hydrofrac.probes.crack_at`)."""
+        from .probes import crack_at
+        return crack_at(self, positions)
+
     def summary(self) -> Dict:
         out = self.solver.summary()
         if self.network is not None:

@@ -27,6 +27,7 @@ import numpy as np
 from .checkpoint import Checkpoint, CheckpointError, dumps, loads
 from .io import VTKSeries
 from .output import FrameSchedule, History
+from .probes import ProbeWriter
 from .problem import Problem
 from .solver import BlowUpError, Solver
 from .summary import build_summary, write_summary
@@ -49,6 +50,7 @@ class RunOptions:
     progress_wall : seconds of wall time between progress lines (rank 0)
     history_every : steps between history rows
     params : the run's physical parameters; a restart whose parameters differ is refused
+    probes : points (m, 2) whose v and σ go into ``probes.csv`` with every history row
     """
 
     t_end: float
@@ -60,6 +62,7 @@ class RunOptions:
     progress_wall: float = 10.0
     history_every: int = 1
     params: Mapping = field(default_factory=dict)
+    probes: Optional[Sequence[Sequence[float]]] = None
 
     def __post_init__(self):
         if not (_real(self.t_end) and self.t_end > 0):
@@ -75,6 +78,10 @@ class RunOptions:
             raise ValueError(f"checkpoint_steps must be an integer >= 1 (or None); got {self.checkpoint_steps!r}")
         if not str(self.out):
             raise ValueError("out (the output folder) must not be empty")
+        if self.probes is not None:
+            pts = np.asarray(self.probes, dtype=float)
+            if pts.ndim != 2 or pts.shape[1] != 2 or not len(pts) or not np.all(np.isfinite(pts)):
+                raise ValueError(f"probes must be a list of (x, y) points; got {self.probes!r}")
 
 
 class Monitor:
@@ -214,6 +221,7 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
         loop.pop("finished_at", None)
         frames = FrameSchedule(t_end, options.frames, int(data["frames_done"]))
         history = History(history_path, comm, restart_step=problem.solver.step_count)
+        restart_step = problem.solver.step_count
         log(comm, f"[hydrofrac] restarted from {ckpt.dir} at step {problem.solver.step_count}, "
                   f"t = {problem.solver.t:.6g} s")
     else:
@@ -221,12 +229,16 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
             log(comm, f"[hydrofrac] no checkpoint in {ckpt.dir}; starting from t = 0")
         frames = FrameSchedule(t_end, options.frames)
         history = History(history_path, comm)
+        restart_step = None
+    probes = None if options.probes is None else ProbeWriter(options.probes, out / "probes.csv", comm, restart_step)
 
-    def history_row():
+    def write_history():
         row = _energy_row(problem)
         for m in monitors:
             row.update(m.history(problem))
-        return row
+        history.write(row)
+        if probes is not None:
+            probes.write(problem)
 
     solver = problem.solver
     steps_left = max(0, int(math.ceil((t_end - solver.t) / solver.dt - 1e-9)))
@@ -236,7 +248,7 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
         solver.update_energy()
         t0 = time.perf_counter()
         series.write(solver.t, problem.parts())
-        history.write(history_row())
+        write_history()
         solver.timers.add("output", time.perf_counter() - t0)
 
     good = _snapshot(problem)
@@ -281,6 +293,8 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
                            f"{series.pvd_path} and {ckpt.dir}")
                     log(comm, msg)
                     history.close()
+                    if probes is not None:
+                        probes.close()
                     raise RuntimeError(msg) from err
                 if new is not None:
                     for m in monitors:
@@ -293,7 +307,7 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
             at_end = solver.t >= t_end * (1 - 1e-12)
             t0 = time.perf_counter()
             if solver.step_count % options.history_every == 0 or at_end:
-                history.write(history_row())
+                write_history()
             if frames.due(solver.t, solver.dt):
                 series.write(solver.t, problem.parts())
             solver.timers.add("output", time.perf_counter() - t0)
@@ -328,6 +342,8 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
                f"t = {t_bad:.6g} s, with its energy budget) is in {series.pvd_path} and {ckpt.dir}")
         log(comm, msg)
         history.close()
+        if probes is not None:
+            probes.close()
         raise BlowUpError(msg) from None
     wall = time.perf_counter() - wall0
     loop["finished_at"] = t_end
@@ -337,6 +353,8 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
         snap, (prob, frame_list, done, mon, lp, geom) = before_last
         save(snap, (prob, frame_list, done, mon, dumps({**loads(lp), "finished_at": t_end}), geom))
     history.close()
+    if probes is not None:
+        probes.close()
 
     accuracy = dict(remesh.report()) if hasattr(remesh, "report") else {}
     for m in monitors:
@@ -344,7 +362,8 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
     summary = build_summary(problem, name, wall, loop["work"], solver.step_count - step0,
                             loop["remeshes"] if remesh is not None else None, accuracy,
                             {"paraview": str(series.pvd_path), "history": str(history_path),
-                             "checkpoint": str(ckpt.dir)})
+                             "checkpoint": str(ckpt.dir),
+                             **({"probes": str(out / "probes.csv")} if probes is not None else {})})
     write_summary(summary, out, comm)
     return summary
 

@@ -1,29 +1,15 @@
-"""Pieces shared by the study scripts (``study_*.py``): loading a scenario module, the
-common command line, and a timed run of a solver."""
+"""Pieces shared by the study scripts (``study_*.py``): the common command line, a timed run
+of a problem, work-precision helpers and the chart finishing."""
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import math
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
 
-SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
-
-
-def scenario(name):
-    """The module ``scenarios/<name>.py`` (loaded once; the scenarios are scripts, not a package)."""
-    key = f"hydrofrac_scenario_{name}"
-    if key not in sys.modules:
-        spec = importlib.util.spec_from_file_location(key, SCENARIOS / f"{name}.py")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[key] = module
-        spec.loader.exec_module(module)
-    return sys.modules[key]
+from hydrofrac.loader import scenario  # noqa: F401  (the studies load scenarios through it)
 
 
 def study_parser(doc):

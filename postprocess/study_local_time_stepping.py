@@ -29,6 +29,7 @@ import numpy as np
 from mpi4py import MPI
 
 from hydrofrac.postprocess.rundata import write_csv
+from hydrofrac.postprocess.cost_model import lts_gain
 from hydrofrac.postprocess.study_common import scenario, study_parser
 
 
@@ -39,19 +40,6 @@ def cell_steps(solver):
     h_over_c = (solver.geometry.inradius * 2.0 / solver.cd_cell)[:nloc]
     dt = solver.cfl * h_over_c / (2 * solver.degree + 1)
     return np.concatenate(solver.comm.allgather(dt))
-
-
-def lts_gain(dt_cells, dt_global, levels):
-    ratio = dt_cells / dt_global
-    k = np.minimum(np.floor(np.log2(ratio + 1e-12)).astype(int), levels - 1)
-    k = np.maximum(k, 0)
-    work_levels = float(np.mean(2.0 ** -k))
-    work_ideal = float(np.mean(1.0 / ratio))
-    return {"work_ideal": work_ideal, "speedup_ideal": 1.0 / work_ideal,
-            "work_levels": work_levels, "speedup_levels": 1.0 / work_levels,
-            "finest_level_share": float(np.mean(k == 0)),
-            "levels_used": int(k.max()) + 1,
-            "dt_max_over_min": float(ratio.max())}
 
 
 def scenes(quick):

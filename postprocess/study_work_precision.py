@@ -32,7 +32,7 @@ from mpi4py import MPI
 from scipy.special import erfc
 
 from hydrofrac import ROCK, compat
-from hydrofrac.cg_baseline import CentralDifferenceCG, energy_norm_error, timed_steps
+from hydrofrac.postprocess.baselines.cg_baseline import CentralDifferenceCG, energy_norm_error, timed_steps
 from hydrofrac.forms import elastodynamics as ef
 from hydrofrac.postprocess.rundata import write_csv
 from hydrofrac.postprocess.study_common import log_axes, plane_wave_solver, save_figure, study_parser, wall_at

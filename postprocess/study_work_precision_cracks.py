@@ -32,7 +32,7 @@ import numpy as np
 from mpi4py import MPI
 
 from hydrofrac import ROCK, compat
-from hydrofrac.cg_crack import CrackCG, boundary_facets_on, crack_opening, split_mesh
+from hydrofrac.postprocess.baselines.cg_crack import CrackCG, boundary_facets_on, crack_opening, split_mesh
 from hydrofrac.meshes.fractures import NATURAL
 from hydrofrac.postprocess.rundata import write_csv
 from hydrofrac.postprocess.study_common import log_axes, save_figure, scenario, study_parser, timed_run, wall_at

@@ -44,6 +44,7 @@ from hydrofrac import CONFINEMENT, ROCK, cli
 from hydrofrac.boundary import Absorbing, PiecewiseLinear, Velocity
 from hydrofrac.interface import Crack, Interface, crack_facet_indices
 from hydrofrac.meshes.blocks import square_with_segment
+from hydrofrac.network import CrackLine, CrackNetwork
 from hydrofrac.problem import Problem
 from hydrofrac.run import Monitor, RunOptions, log
 from hydrofrac.run import run as run_problem
@@ -108,7 +109,9 @@ def setup(comm=MPI.COMM_WORLD, size="default", degree=None) -> Problem:
     bcs = [Velocity(LEFT, value=(0.0, V_PEAK), history=pulse), Absorbing(OTHER, stress=sigma0)]
     solver = Solver(mesh, p_default if degree is None else degree, ROCK, facet_tags=tags, bcs=bcs,
                     sigma0=sigma0, crack_facets=crack_facet_indices(mesh, tags, cracks))
-    return Problem(solver, Interface(solver, tags, cracks), facet_tags=tags)
+    dx, dy = A * math.cos(THETA), A * math.sin(THETA)
+    network = CrackNetwork.from_cracks([CrackLine(CRACK, "natural", [(-dx, -dy), (dx, dy)])])
+    return Problem(solver, Interface(solver, tags, cracks), network=network, facet_tags=tags)
 
 
 # ## Measurements

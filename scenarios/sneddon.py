@@ -24,6 +24,7 @@ from hydrofrac.boundary import Absorbing, PiecewiseLinear
 from hydrofrac.hydraulics import HydraulicParams
 from hydrofrac.interface import Crack, Interface, crack_facet_indices
 from hydrofrac.meshes.fractures import NATURAL, OUTER, Domain, Fracture, fracture_mesh
+from hydrofrac.network import CrackLine, CrackNetwork
 from hydrofrac.problem import Problem
 from hydrofrac.run import Monitor, RunOptions, log
 from hydrofrac.run import run as run_problem
@@ -58,7 +59,8 @@ def setup(comm=MPI.COMM_WORLD, degree=2, a=1.0, dp=1.0e6, p0=CONFINEMENT, size=6
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks), relaxation=relaxation)
     iface = Interface(solver, fm.facet_tags, cracks)
     hyd = HydraulicParams(pressure=pressure_ramp(p0, dp, t_ramp), sources=[NATURAL], regularized=False)
-    return Problem(solver, iface, hyd, facet_tags=fm.facet_tags)
+    network = CrackNetwork.from_cracks([CrackLine(NATURAL, "natural", fm.lines[NATURAL])])
+    return Problem(solver, iface, hyd, network=network, facet_tags=fm.facet_tags)
 
 
 # ## Accuracy: L2 error of the opening away from the tips (|x| < 0.9 a)

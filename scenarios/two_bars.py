@@ -24,6 +24,7 @@ from mpi4py import MPI
 from hydrofrac import ROCK, cli, compat
 from hydrofrac.boundary import Symmetry
 from hydrofrac.interface import ContactParams, Crack, Interface, crack_facet_indices
+from hydrofrac.network import CrackLine, CrackNetwork
 from hydrofrac.problem import Problem
 from hydrofrac.run import Monitor, RunOptions, log
 from hydrofrac.run import run as run_problem
@@ -55,7 +56,10 @@ def setup(comm=MPI.COMM_WORLD, degree=3, nx=80, L=1.0, v0=1.0, delta0=-0.01, mat
     solver = Solver(mesh, degree, material, facet_tags=tags, bcs=[Symmetry(SIDES)],
                     crack_facets=crack_facet_indices(mesh, tags, cracks))
     solver.set_initial_state(lambda x: np.vstack([np.where(x[0] < 0, v0, -v0)] + [0 * x[0]] * 4), by_cell=True)
-    return Problem(solver, Interface(solver, tags, cracks, contact=ContactParams(delta0=delta0)), facet_tags=tags)
+    h = 2 * L / nx
+    network = CrackNetwork.from_cracks([CrackLine(CRACK, "natural", [(0.0, 0.0), (0.0, h)])])
+    return Problem(solver, Interface(solver, tags, cracks, contact=ContactParams(delta0=delta0)), network=network,
+                   facet_tags=tags)
 
 
 # ## Measurements against the exact answer

@@ -7,6 +7,7 @@ import pytest
 import exact
 from hydrofrac import ROCK, Material
 from hydrofrac.boundary import PiecewiseLinear, Traction
+from hydrofrac.loader import scenario as _scenario
 from hydrofrac.run import RunOptions
 from hydrofrac.solver import Solver
 
@@ -106,16 +107,6 @@ def test_history_lengths_must_match():
 def test_run_end_time_must_be_positive():
     with pytest.raises(ValueError, match=r"t_end must be a positive time in seconds; got "):
         RunOptions(t_end=0.0)
-
-
-def _scenario(name):
-    import importlib.util
-    from pathlib import Path
-    path = Path(__file__).resolve().parents[1] / "scenarios" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(f"scenario_{name}", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.mark.parametrize("name, args, word", [

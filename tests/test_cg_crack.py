@@ -9,7 +9,7 @@ import pytest
 from mpi4py import MPI
 
 from hydrofrac import ROCK, compat
-from hydrofrac.cg_crack import split_mesh
+from hydrofrac.postprocess.baselines.cg_crack import split_mesh
 from hydrofrac.postprocess import study_work_precision_cracks as study
 
 V0, L = 1.0, 1.0

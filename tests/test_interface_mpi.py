@@ -15,8 +15,8 @@ from hydrofrac import ROCK
 from hydrofrac.interface import Crack, DamageParams, Interface, crack_facet_indices
 from hydrofrac.solver import Solver
 
-from test_interface import (CRACK, check_shear_fracture, check_two_bars, kinked_crack_mesh, load_scenario, norm,
-                            rhs_parts, strip)
+from helpers import (CRACK, check_shear_fracture, check_two_bars, kinked_crack_mesh, load_scenario, norm,
+                     rhs_parts, strip)
 
 pytestmark = pytest.mark.mpi
 

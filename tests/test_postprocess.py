@@ -225,7 +225,7 @@ def test_local_time_stepping_gain():
     """The LTS study's work model: cells at 1, 1, 2, 4 and 3 times the global step; ideal
     per-cell steps do (1 + 1 + 1/2 + 1/4 + 1/3)/5 of the work, 2^k levels (3 -> 2)
     (1 + 1 + 1/2 + 1/4 + 1/2)/5, or with one level all of it."""
-    from hydrofrac.postprocess.study_local_time_stepping import lts_gain
+    from hydrofrac.postprocess.cost_model import lts_gain
     dt = np.array([1.0, 1.0, 2.0, 4.0, 3.0]) * 1e-6
     g = lts_gain(dt, 1e-6, levels=6)
     assert g["work_ideal"] == pytest.approx((1 + 1 + 0.5 + 0.25 + 1 / 3) / 5, rel=1e-12)

@@ -17,7 +17,7 @@ from hydrofrac.boundary import Absorbing, PiecewiseLinear, Symmetry, Traction
 from hydrofrac.interface import Crack, DamageParams, Interface, crack_facet_indices
 from hydrofrac.solver import Solver
 
-from test_interface import CRACK, LEFT, RIGHT, SIDES, strip  # the strip mesh helper
+from helpers import CRACK, LEFT, RIGHT, SIDES, strip  # the strip mesh helper
 
 N = 2000  # random interface points per test
 RTOL = 1e-12  # round-off, relative to the size of the characteristic values

@@ -1,6 +1,5 @@
 """The borehole scenario: runs on 1 and 2 ranks with the same result, and its
 accuracy report measures what it says (errors against the Lamé solution)."""
-import importlib.util
 import json
 from pathlib import Path
 
@@ -9,15 +8,9 @@ import pytest
 from mpi4py import MPI
 
 from hydrofrac import CONFINEMENT
+from hydrofrac.loader import scenario as load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def load_scenario(name):
-    spec = importlib.util.spec_from_file_location(f"scenario_{name}", ROOT / "scenarios" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def test_borehole_same_on_two_ranks(tmp_path, run_command, mpirun):

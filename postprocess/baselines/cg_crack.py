@@ -30,7 +30,7 @@ import numpy as np
 import ufl
 from mpi4py import MPI
 
-from . import compat
+from hydrofrac import compat
 from .cg_baseline import elastic_operators
 
 

@@ -24,8 +24,8 @@ import numpy as np
 import ufl
 from mpi4py import MPI
 
-from . import compat
-from .forms import elastodynamics as ef
+from hydrofrac import compat
+from hydrofrac.forms import elastodynamics as ef
 
 
 def elastic_operators(V, material):

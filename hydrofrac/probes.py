@@ -1,0 +1,128 @@
+"""Probes (receivers): the fields at physical points and the crack state at arc-length positions.
+
+* :func:`field_at` gives (v_x, v_y, s_xx, s_yy, s_xy) at points from the state vector: the
+  cells are found by DOLFINx's bounding-box tree (compiled), the basis is tabulated for all
+  points at once.  A point on a facet takes the mean of the owned cells that contain it, so
+  the value does not depend on the partition; NaN where no cell contains the point.
+* :func:`crack_at` gives opening, slip, tractions, D, η and f_p at positions along a crack
+  (tag, arc length from its first point), from the nearest Gauss point on that crack.
+* :class:`ProbeWriter` writes ``probes.csv`` as a run goes (``--probes x,y;x,y``).
+"""
+from __future__ import annotations
+
+from typing import Dict, Sequence, Tuple
+
+import numpy as np
+from mpi4py import MPI
+
+from . import compat
+
+FIELDS = ("v_x", "v_y", "s_xx", "s_yy", "s_xy")
+CRACK_FIELDS = ("opening", "slip", "traction_n", "traction_t", "D", "eta", "f_p")
+
+
+def field_at(solver, points) -> np.ndarray:
+    """(m, 5): v and σ at ``points`` (m, 2), the same on every rank (collective)."""
+    X = np.asarray(points, dtype=float).reshape(-1, 2)
+    nloc = compat.num_cells_local(solver.mesh)
+    pts, cells = compat.cells_containing(solver.mesh, X)
+    own = cells < nloc
+    pts, cells = pts[own], cells[own]
+    out = np.zeros((X.shape[0], 5))
+    cnt = np.zeros(X.shape[0])
+    if cells.size:
+        g = solver.geometry
+        ref = np.einsum("cij,cj->ci", g.Jinv[cells], X[pts] - g.x0[cells])
+        phi = solver.ref.tabulate(ref)  # (k, nb)
+        U = solver.x.array_r.reshape(-1, 5)
+        vals = np.einsum("kn,knc->kc", phi, U[compat.cell_dofs(solver.V)[cells]])
+        np.add.at(out, pts, vals)
+        np.add.at(cnt, pts, 1.0)
+    comm = solver.comm
+    comm.Allreduce(MPI.IN_PLACE, out, op=MPI.SUM)
+    comm.Allreduce(MPI.IN_PLACE, cnt, op=MPI.SUM)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return out / cnt[:, None]
+
+
+def stress_at(solver, points) -> np.ndarray:
+    """(m, 2, 2) total stress at ``points`` (see :func:`field_at`)."""
+    f = field_at(solver, points)
+    return np.stack([np.stack([f[:, 2], f[:, 4]], -1), np.stack([f[:, 4], f[:, 3]], -1)], axis=1)
+
+
+def _arc_length(points, line) -> Tuple[np.ndarray, np.ndarray]:
+    """Arc length along the polyline ``line`` of the foot of each point, and the distance."""
+    a, b = line[:-1], line[1:]
+    e = b - a
+    L = np.linalg.norm(e, axis=1)
+    s0 = np.r_[0.0, np.cumsum(L)[:-1]]
+    u = np.clip(np.einsum("pkj,kj->pk", points[:, None, :] - a[None], e) / np.maximum(L * L, 1e-300), 0, 1)
+    foot = a[None] + u[..., None] * e[None]
+    d = np.linalg.norm(points[:, None, :] - foot, axis=2)
+    k = np.argmin(d, axis=1)
+    i = np.arange(len(points))
+    return s0[k] + u[i, k] * L[k], d[i, k]
+
+
+def crack_at(problem, probes: Sequence[Tuple[int, float]]) -> np.ndarray:
+    """(m, 7): :data:`CRACK_FIELDS` at (crack tag, arc length [m]) positions, from the nearest
+    Gauss point of that crack (collective; NaN for a tag the problem has no facets of)."""
+    iface, net = problem.interface, problem.network
+    lines = {c.tag: c.points for c in net.cracks} if net is not None else {}
+    fields = iface.fields()
+    if problem.hydraulics is not None:
+        fields.update(problem.hydraulics.fields())
+    pts = iface.points.reshape(-1, 2)
+    tags = np.repeat(iface.crack_tag, iface.nq)
+    best = np.full(len(probes), np.inf)
+    vals = np.full((len(probes), len(CRACK_FIELDS)), np.nan)
+    for j, (tag, s) in enumerate(probes):
+        if tag not in lines:
+            raise ValueError(f"crack probe: no crack with tag {tag}; the cracks are {sorted(lines)}")
+        on = np.flatnonzero(tags == tag)
+        if not on.size:
+            continue
+        arc, _ = _arc_length(pts[on], lines[tag])
+        k = np.argmin(np.abs(arc - s))
+        best[j] = abs(arc[k] - s)
+        vals[j] = [np.asarray(fields[f]).reshape(-1)[on[k]] if f in fields else np.nan for f in CRACK_FIELDS]
+    comm = problem.comm
+    allbest = np.array(comm.allgather(best))  # (ranks, m)
+    owner = np.argmin(allbest, axis=0)
+    mine = np.where(owner == comm.rank, 1.0, 0.0)[:, None]
+    out = np.where(mine > 0, np.nan_to_num(vals), 0.0)
+    comm.Allreduce(MPI.IN_PLACE, out, op=MPI.SUM)
+    out[~np.isfinite(allbest.min(axis=0))] = np.nan
+    return out
+
+
+def parse_points(text: str) -> np.ndarray:
+    """``"x,y;x,y"`` -> (m, 2); raises ValueError with the expected form."""
+    try:
+        pts = np.array([[float(v) for v in p.split(",")] for p in text.split(";") if p.strip()])
+    except ValueError:
+        pts = np.zeros((0, 3))
+    if pts.ndim != 2 or pts.shape[1] != 2 or not len(pts) or not np.all(np.isfinite(pts)):
+        raise ValueError(f"probes must be 'x,y;x,y;...' (metres); got {text!r}")
+    return pts
+
+
+class ProbeWriter:
+    """``probes.csv``: step, t and :data:`FIELDS` at every probe point, one row per history row."""
+
+    def __init__(self, points, path, comm, restart_step=None):
+        from .output import History
+        self.points = np.asarray(points, dtype=float).reshape(-1, 2)
+        self.table = History(path, comm, restart_step=restart_step)
+
+    def write(self, problem):
+        f = field_at(problem.solver, self.points)
+        row: Dict[str, float] = {"step": problem.solver.step_count, "t": problem.t}
+        for i in range(len(self.points)):
+            for k, name in enumerate(FIELDS):
+                row[f"p{i}_{name}"] = float(f[i, k])
+        self.table.write(row)
+
+    def close(self):
+        self.table.close()
