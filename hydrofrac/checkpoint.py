@@ -175,6 +175,5 @@ class Checkpoint:
         solver._last_rates = None if rates is None else tuple(rates)
         for i, e in enumerate(solver.extensions):
             e.restore_state({k.split("_", 1)[1]: data[k] for k in data if k.startswith(f"ext{i}_")})
-        solver.balance_reference = solver.energy.balance_error  # judged when it was made
         problem.after_restore()
         series.restore(json.loads(data["frames"]))

@@ -445,9 +445,13 @@ class Interface:
     # ------------------------------------------------------------------ energy
     def dissipation_rates(self):
         """Interface power terms at the last evaluated state [W/m]: dict with
-        friction (tangential interface power), damage (normal power beyond the
-        separation-traction work), flux (characteristic dissipation of the traces),
-        work_in (power of the separation traction S, e.g. fluid pressure, into the body)."""
+        friction (tangential power s*_t [[v*]]_t: >= 0, each mode's tangential traction has
+        the sign of its slip), damage (normal power beyond the separation-traction work:
+        a_S (1 - a_S) 2 (s_B - S)^2 / Z~ >= 0), flux (characteristic dissipation of the
+        traces), work_in (power into the body of the separation traction S relative to the
+        initial stress, e.g. the net fluid pressure, and of the initial shear traction
+        (sigma0 n)_t on the slip: the energy is measured relative to sigma0, so releasing
+        that traction on a sliding crack is a source, not negative friction)."""
         T = self.last
         if not T:
             return {"friction": 0.0, "damage": 0.0, "flux": 0.0, "work_in": 0.0}
@@ -461,9 +465,10 @@ class Interface:
         s0n = rm.to_local(n @ s0.T, n)  # (sigma0 n) in local components
         p_normal = (T["s_star"][:, 0] - s0n[:, 0]) * jump[:, 0]
         p_sep = (T["S"][:, 0] - s0n[:, 0]) * sep_rate
-        fric = (T["s_star"][:, 1] - s0n[:, 1]) * jump[:, 1]
+        fric = T["s_star"][:, 1] * jump[:, 1]
+        p_shear0 = s0n[:, 1] * jump[:, 1]
         flux = (T["Zp"] * (T["vp_star"] - T["vp"]) ** 2 + T["Zm"] * (T["vm_star"] - T["vm"]) ** 2).sum(axis=1)
-        local = np.array([(a * wq).sum() for a in (fric, p_normal - p_sep, flux, -p_sep)])
+        local = np.array([(a * wq).sum() for a in (fric, p_normal - p_sep, flux, p_shear0 - p_sep)])
         tot = np.zeros(4)
         self.solver.comm.Allreduce(local, tot, op=MPI.SUM)  # one reduction for the four terms
         return dict(zip(("friction", "damage", "flux", "work_in"), tot.tolist()))

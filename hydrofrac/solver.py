@@ -67,12 +67,17 @@ TABLEAUX = {
 
 BULK_FACET = 1
 MAX_DEGREE = 4
-#: blow-up detection (:meth:`Solver.check_stability`): the largest energy created beyond the
-#: budget, as a fraction of initial + inflow energy, before a run counts as unstable, checked
-#: from this step on (in the first two steps of a load there is little inflow to compare with;
-#: measured on the scenarios' --quick sizes: at most +0.8 % there, +0.7 % from step 3 on)
-BLOWUP_BALANCE = 0.05
-BLOWUP_AFTER_STEPS = 3
+#: blow-up detection (:meth:`Solver.check_stability`): a run counts as unstable when the
+#: energy created beyond the budget (the growth of the positive part of the balance error)
+#: within the last BLOWUP_WINDOW steps exceeds BLOWUP_BALANCE of the energy scale (initial +
+#: inflow).  An
+#: unstable mode grows geometrically, so it shows in a few steps' balance long before it
+#: doubles the energy; a one-time error of the budget (a load switched on at t = 0: 14 % of
+#: the still small energy after the first step of crack_growth, constant afterwards) does not
+#: grow and does not count; nor does a negative error that recovers (the first steps of a
+#: pressure ramp).  Every scenario's --quick run passes (tests/test_reliability.py).
+BLOWUP_BALANCE = 0.02
+BLOWUP_WINDOW = 5
 
 
 class BlowUpError(RuntimeError):
@@ -261,7 +266,7 @@ class Solver:
         self.t = 0.0
         self.step_count = 0
         self.energy = EnergyBudget()
-        self.balance_reference = 0.0
+        self._recent_balance = []  # balance errors of the last steps (check_stability)
         self.x = compat.create_vector(self.V)
         self.set_initial_state()
         self.timers.add("setup", time.perf_counter() - t_setup)
@@ -788,21 +793,21 @@ class Solver:
         return self.energy
 
     def check_stability(self):
-        """Raise :class:`BlowUpError` on NaN/Inf, on energy above everything that flowed in, or,
-        from step :data:`BLOWUP_AFTER_STEPS` on, on energy created beyond the budget (a positive
-        balance error) of more than :data:`BLOWUP_BALANCE` of the energy scale (initial +
-        inflow): an unstable mode shows in the balance long before it doubles the energy, so
-        the state a run falls back to is still close to the stable one (the scenarios' balance
-        errors stay below 0.3 %; a negative one, energy lost beyond the budget's upwind
-        dissipation, is the time-integration error of very rough data, not an instability).
-        ``balance_reference`` is the balance error a run started with (a restart from the
-        last good state of a blown-up run inherits one): only energy created since counts."""
+        """Raise :class:`BlowUpError` on NaN/Inf, on energy above everything that flowed in, or
+        on energy created beyond the budget within the last :data:`BLOWUP_WINDOW` steps (the
+        growth of the balance error) of more than :data:`BLOWUP_BALANCE` of the energy scale:
+        the state a run then falls back to is still close to the stable one.  A falling
+        balance (energy lost beyond the budget's upwind dissipation, the time-integration error
+        of very rough data) is not an instability."""
         e = self.energy
         scale = e.initial + e.inflow_total
         bound = 1.5 * scale + 1e-12 * (1.0 + abs(e.initial))
-        created = e.balance_error - self.balance_reference
-        unbalanced = (self.step_count >= BLOWUP_AFTER_STEPS and created > BLOWUP_BALANCE * max(
-            scale, abs(e.total), 1e-300))
+        recent = self._recent_balance
+        recent.append(max(e.balance_error, 0.0))  # energy created, not lost: a recovering
+        if len(recent) > BLOWUP_WINDOW + 1:       # negative error of a load's first steps
+            recent.pop(0)                          # does not count
+        created = recent[-1] - recent[0]
+        unbalanced = created > BLOWUP_BALANCE * max(scale, abs(e.total), 1e-300)
         if not math.isfinite(e.total) or e.total > bound or unbalanced:
             raise BlowUpError(
                 f"unstable at step {self.step_count}, t = {self.t:.6g} s: total energy {e.total:.4g} J/m, "

@@ -112,7 +112,7 @@ def continue_run(old, new):
     new.energy.kinetic, new.energy.strain = new.energies()
     new.energy.transfer_loss += before - new.energy.total  # reported, so the budget still closes
     new._last_rates = old._last_rates  # the trapezoid of the next step starts from the old rates
-    new.balance_reference = old.balance_reference
+    new._recent_balance = list(old._recent_balance)
     return before, new.energy.total
 
 

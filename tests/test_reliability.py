@@ -235,3 +235,17 @@ def test_frames_evenly_spaced_in_time_across_remeshes(tmp_path):
     assert len(times) == 13
     dt = json.loads((out / "summary.json").read_text())["dt"]
     assert np.allclose(np.diff(times), 3e-4 / 12, atol=1.01 * dt)
+
+
+@pytest.mark.parametrize("script", ["two_bars", "shear_fracture", "sneddon", "borehole", "crack_growth",
+                                    "intersection_regularized", "intersection_unregularized", "refracture",
+                                    "two_cracks"])
+def test_every_dissipation_term_is_non_negative(script, tmp_path):
+    """Each scenario at --quick: every dissipation of the energy budget is >= 0 (before:
+    crack_growth reported -113.8 J/m of friction on frictionless cracks, the work of the
+    initial shear traction on the slip counted as friction)."""
+    out = tmp_path / "r"
+    _run([sys.executable, SC / f"{script}.py", "--quick", "--frames", "1", "--out", out], timeout=900)
+    e = json.loads((out / "summary.json").read_text())["energy"]
+    for key in ("radiated", "dissipated_flux", "dissipated_friction", "dissipated_damage", "dissipated_relaxation"):
+        assert e[key] >= -1e-9 * max(1.0, abs(e["initial"]) + abs(e["work_in"])), (key, e[key])
