@@ -487,6 +487,8 @@ class Interface:
             "opening": self.state[1], "slip": self.state[2],
             "traction_n": T["s_star"][:, 0].reshape(nf, nq), "traction_t": T["s_star"][:, 1].reshape(nf, nq),
             "mode": np.argmax(frac, axis=1).reshape(nf, nq).astype(np.int32),
+            # the permitted penetration of each crack, from the model parameters (model §4)
+            "penetration_limit": np.repeat(abs(self.contact.delta0) * self.delta_scale[:, None], nq, axis=1),
         }
 
     def part(self, extra: Optional[Dict[str, np.ndarray]] = None):

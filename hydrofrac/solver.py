@@ -68,16 +68,15 @@ TABLEAUX = {
 BULK_FACET = 1
 MAX_DEGREE = 4
 #: blow-up detection (:meth:`Solver.check_stability`): a run counts as unstable when the
-#: energy created beyond the budget (the growth of the positive part of the balance error)
-#: within the last BLOWUP_WINDOW steps exceeds BLOWUP_BALANCE of the energy scale (initial +
-#: inflow).  An
-#: unstable mode grows geometrically, so it shows in a few steps' balance long before it
-#: doubles the energy; a one-time error of the budget (a load switched on at t = 0: 14 % of
-#: the still small energy after the first step of crack_growth, constant afterwards) does not
-#: grow and does not count; nor does a negative error that recovers (the first steps of a
-#: pressure ramp).  Every scenario's --quick run passes (tests/test_reliability.py).
+#: balance error (energy created beyond the budget) has grown in each of the last
+#: BLOWUP_WINDOW steps, by more than BLOWUP_BALANCE of the energy scale (initial + inflow) in
+#: all.  An unstable mode grows step after step, so it shows in the balance long before it
+#: doubles the energy; the budget's one-time errors do not count: a load switched on at t = 0
+#: (14 % of the still small energy after the first step of crack_growth, constant afterwards)
+#: or the kink of a pressure ramp inside a step (4.8 % at the second step of the full-size
+#: intersection problem).  Every scenario's --quick run passes (tests/test_reliability.py).
 BLOWUP_BALANCE = 0.02
-BLOWUP_WINDOW = 5
+BLOWUP_WINDOW = 4
 
 
 class BlowUpError(RuntimeError):
@@ -794,20 +793,22 @@ class Solver:
 
     def check_stability(self):
         """Raise :class:`BlowUpError` on NaN/Inf, on energy above everything that flowed in, or
-        on energy created beyond the budget within the last :data:`BLOWUP_WINDOW` steps (the
-        growth of the balance error) of more than :data:`BLOWUP_BALANCE` of the energy scale:
-        the state a run then falls back to is still close to the stable one.  A falling
-        balance (energy lost beyond the budget's upwind dissipation, the time-integration error
-        of very rough data) is not an instability."""
+        on a balance error that grew in each of the last :data:`BLOWUP_WINDOW` steps by more
+        than :data:`BLOWUP_BALANCE` of the energy scale in all: the state a run then falls back
+        to is still close to the stable one.  A falling balance (energy lost beyond the
+        budget's upwind dissipation, the time-integration error of very rough data) is not an
+        instability."""
         e = self.energy
         scale = e.initial + e.inflow_total
         bound = 1.5 * scale + 1e-12 * (1.0 + abs(e.initial))
         recent = self._recent_balance
-        recent.append(max(e.balance_error, 0.0))  # energy created, not lost: a recovering
-        if len(recent) > BLOWUP_WINDOW + 1:       # negative error of a load's first steps
-            recent.pop(0)                          # does not count
-        created = recent[-1] - recent[0]
-        unbalanced = created > BLOWUP_BALANCE * max(scale, abs(e.total), 1e-300)
+        recent.append(e.balance_error)
+        if len(recent) > BLOWUP_WINDOW + 1:
+            recent.pop(0)
+        # energy created beyond the budget in every one of the last steps (an instability
+        # grows step after step; a load's kink inside one step makes a one-time error)
+        growing = len(recent) == BLOWUP_WINDOW + 1 and all(b > a for a, b in zip(recent, recent[1:]))
+        unbalanced = growing and recent[-1] - recent[0] > BLOWUP_BALANCE * max(scale, abs(e.total), 1e-300)
         if not math.isfinite(e.total) or e.total > bound or unbalanced:
             raise BlowUpError(
                 f"unstable at step {self.step_count}, t = {self.t:.6g} s: total energy {e.total:.4g} J/m, "

@@ -208,6 +208,33 @@ def _scalar_bar(title, n_labels=5, font_scale=1.0):
             "font_family": "arial"}
 
 
+def nice_length(span: float) -> float:
+    """A round length (1, 2 or 5 x 10^k) of at most a quarter of ``span``."""
+    target = 0.25 * span
+    k = np.floor(np.log10(target))
+    for m in (5.0, 2.0, 1.0):
+        if m * 10 ** k <= target:
+            return float(m * 10 ** k)
+    return float(10 ** k)
+
+
+def _length_scale(plotter, bounds, font_scale=1.0):
+    """A scale bar with its length in metres, lying in the plane z = 0 at the lower left, so
+    that every picture (flat or tilted) carries its length scale."""
+    import pyvista as pv
+    x0, x1, y0, y1 = bounds
+    L = nice_length(x1 - x0)
+    a = np.array([x0 + 0.05 * (x1 - x0), y0 + 0.06 * (y1 - y0), 0.0])
+    b = a + [L, 0.0, 0.0]
+    plotter.add_mesh(pv.Line(a, b), color="black", line_width=4)
+    for end in (a, b):
+        plotter.add_mesh(pv.Line(end - [0, 0.012 * (y1 - y0), 0], end + [0, 0.012 * (y1 - y0), 0]), color="black",
+                         line_width=3)
+    label = f"{L * 100:g} cm" if L < 1 else f"{L:g} m"
+    plotter.add_point_labels([0.5 * (a + b) + [0, 0.03 * (y1 - y0), 0]], [label], font_size=round(12 * font_scale),
+                             text_color="black", shape=None, show_points=False, always_visible=True)
+
+
 def draw_energy(plotter, run: Run, frame, scale: EnergyScale, bounds, labels: bool = True,
                 font_scale: float = 1.0):
     """Add the energy picture of one frame to ``plotter``."""
@@ -245,6 +272,7 @@ def draw_energy(plotter, run: Run, frame, scale: EnergyScale, bounds, labels: bo
         plotter.add_text(f"height: kinetic energy density, peak {scale.k_max / k_scale:.3g} {k_unit}",
                          position=(6, height - round(52 * font_scale)), font_size=max(6, round(9 * font_scale)),
                          color="black")
+    _length_scale(plotter, bounds, font_scale)
     _camera_3d(plotter, bounds)
 
 
@@ -278,6 +306,7 @@ def draw_mesh(plotter, run: Run, frame, bounds, labels: bool = True, field: Opti
     if labels:
         plotter.add_text(time_label(run, t), position="upper_left", font_size=round(13 * font_scale),
                          color="black")
+    _length_scale(plotter, bounds, font_scale)
     x0, x1, y0, y1 = bounds
     plotter.view_xy()
     plotter.camera.focal_point = (0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.0)
@@ -323,7 +352,8 @@ def render_frames(run: Run, kind: str, frames, out: Path, size=(900, 700), crop=
 
 def sequence_sheet(pngs: Sequence[Path], out: Path, columns: Optional[int] = None, width: int = 1500,
                    palette: bool = False) -> Path:
-    """The pictures side by side, (a), (b), ... in the corner, at most ``width`` pixels wide
+    """The pictures side by side, (a), (b), ... in the corner, a short last row centred (no
+    empty panel), at most ``width`` pixels wide
     (``palette``: reduced to 256 colours, about a third of the file size, for galleries)."""
     from PIL import Image, ImageDraw, ImageFont
     images = [Image.open(p).convert("RGB") for p in pngs]
@@ -337,8 +367,11 @@ def sequence_sheet(pngs: Sequence[Path], out: Path, columns: Optional[int] = Non
         font = ImageFont.truetype("DejaVuSans.ttf", max(14, h // 22))
     except OSError:
         font = ImageFont.load_default()
+    last_row = n - (rows - 1) * columns  # pictures in the last row: centred, no empty panel
     for i, img in enumerate(images):
-        x, y = (i % columns) * w, (i // columns) * h
+        r, c = i // columns, i % columns
+        x = c * w + (((columns - last_row) * w) // 2 if r == rows - 1 else 0)
+        y = r * h
         sheet.paste(img, (x, y))
         draw.text((x + 8, y + h - max(14, h // 22) - 12), f"({chr(ord('a') + i)})", fill="black", font=font)
     if sheet.width > width:

@@ -230,6 +230,8 @@ def crack_frame_statistics(grid) -> Dict[str, float]:
     fraction_<mode> : share of the interface length in each contact mode, from the
         model's mode fractions 1 − D, D η γ, D η (1 − γ), D (1 − η) (they add up to one)
     opening_max, opening_min : largest and smallest opening δ at the Gauss points [m]
+    penetration_ratio_max : largest penetration −δ relative to the permitted |δ'₀| δ̃ of its
+        crack (the output's ``penetration_limit``, from the model parameters); > 1 is a violation
     """
     ell = segment_lengths(grid)
     total = float(ell.sum())
@@ -246,6 +248,9 @@ def crack_frame_statistics(grid) -> Dict[str, float]:
     delta = np.asarray(grid.point_data["opening"])
     out["opening_max"] = float(delta.max())
     out["opening_min"] = float(delta.min())
+    if "penetration_limit" in grid.point_data:  # |δ'₀| δ̃ of each crack, from the model parameters
+        limit = np.asarray(grid.point_data["penetration_limit"])
+        out["penetration_ratio_max"] = float(np.max(np.maximum(-delta, 0.0) / limit))
     return out
 
 
@@ -260,24 +265,6 @@ def crack_statistics(run: Run, max_frames: Optional[int] = None) -> Dict[str, np
     if not rows:
         return {}
     return {k: np.array([r.get(k, np.nan) for r in rows]) for k in rows[0]}
-
-
-def opening_floor(run: Run, stats: Optional[Dict[str, np.ndarray]] = None) -> Tuple[Optional[float], str]:
-    """(permitted penetration |δ'₀| δ̃ [m], where it comes from).
-
-    ``accuracy.opening_floor`` of the summary if the scenario reports it (re-fracturing);
-    else the lowest opening in the frames when it is negative: the contact update clamps
-    the opening at δ'₀ δ̃, and pre-existing closed cracks start there, so in practice
-    the data minimum is the floor (a run that never presses a crack shut shows none).
-    """
-    floor = run.summary.get("accuracy", {}).get("opening_floor")
-    if floor is not None and np.isfinite(floor) and floor < 0:
-        return -float(floor), "summary.json (accuracy.opening_floor)"
-    if stats and "opening_min" in stats:
-        low = float(np.nanmin(stats["opening_min"]))
-        if low < 0:
-            return -low, "lowest opening in the frames (taken as the floor δ'₀δ̃)"
-    return None, "not known (no negative opening in the frames, no opening_floor in summary.json)"
 
 
 def write_csv(path, rows):
