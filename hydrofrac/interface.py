@@ -286,6 +286,11 @@ class Interface:
                                                self._phi[1], self._cells[0], self._cells[1], self._dofs[0],
                                                self._dofs[1])
         self._nb = self._phi[0].shape[2]
+        self._facets = kernels.Facets(self._P, self._I, self.nq, self._nb)
+        c, d = contact, damage
+        self._laws = kernels.Laws(bool(c.regularized), float(c.delta0), float(c.w0),
+                                  0.0 if c.penalty is None else float(c.penalty), float(d.beta), float(d.s_onset),
+                                  float(d.s_bar), float(d.a))
         self._compile_stage()
         solver.timers.add("setup", time.perf_counter() - t0)
         self.evaluate(solver.x, 0.0, store=True)
@@ -296,12 +301,13 @@ class Interface:
         run, on zero facets: the first stage's compile time is set-up, not interface time."""
         X = np.zeros(5)
         X.flags.writeable = False  # a local form's array_r
-        c = self.contact
         z = np.zeros((3, 0, self.nq))
         Rc = np.zeros((0, self._nb, 5))
-        kernels.interface_stage(X, Rc, np.zeros(5), 0, np.zeros((3, 0, self.nq)), self._P[:0], self._I[:0],
-                                self.nq, self._nb, z[0], z[1], np.zeros((0, self.nq, 2)), np.zeros((0, self.nq)),
-                                1.0, c.regularized, c.delta0, c.w0, 0.0, 1.0, 0.0, 1.0, 1.0)
+        empty = kernels.Facets(self._P[:0], self._I[:0], self.nq, self._nb)
+        kernels.interface_stage(X, Rc, np.zeros(5), 0, np.zeros((3, 0, self.nq)), empty,
+                                kernels.State(z[0], z[1]),
+                                kernels.Separation(np.zeros((0, self.nq, 2)), np.zeros((0, self.nq)), 1.0),
+                                self._laws)
         if self._ghost_flux or self.solver.matfree is None:
             kernels.apply_block_inverse(np.zeros(5), np.zeros(5), self._recv_cells[:0], self._all_dofs,
                                         self.solver.Mref_inv, self.solver.Binv_scaled)
@@ -334,9 +340,8 @@ class Interface:
 
     def _buffers(self):
         N = self.facets.size * self.nq
-        T = {key: np.empty((N, 2)) for key in ("vp", "vm", "sp", "sm", "s_B", "S", "s_star", "vp_star", "vm_star")}
-        T.update({key: np.empty(N) for key in ("eta", "gamma", "w")})
-        return T
+        return {key: np.empty((N, 2)) if key not in ("eta", "gamma", "w") else np.empty(N)
+                for key in kernels.Targets._fields}
 
     def targets(self, xloc, z, t, T=None):
         """Riemann target values and mode fractions at every Gauss point (compiled kernel
@@ -348,14 +353,10 @@ class Interface:
         reuse one; stored states get their own).
         """
         T = self._buffers() if T is None else T
-        S0, cS, S_scale = self._separation(t)
         D = np.ascontiguousarray(z[0])
-        kernels.interface_targets(
-            xloc, self._P, self._I, self.nq, self._nb, D, np.ascontiguousarray(z[1]), S0, cS, S_scale,
-            self.contact.regularized, self.contact.delta0, self.contact.w0,
-            0.0 if self.contact.penalty is None else float(self.contact.penalty),
-            T["vp"], T["vm"], T["sp"], T["sm"], T["s_B"], T["S"], T["s_star"], T["vp_star"], T["vm_star"],
-            T["eta"], T["gamma"], T["w"])
+        kernels.interface_targets(xloc, self._facets, kernels.State(D, np.ascontiguousarray(z[1])),
+                                  kernels.Separation(*self._separation(t)), self._laws,
+                                  kernels.Targets(*(T[k] for k in kernels.Targets._fields)))
         T.update(D=D.reshape(-1), Zp=self._Zq[0], Zm=self._Zq[1])
         return T
 
@@ -373,13 +374,10 @@ class Interface:
     def _stage(self, X, t, Rc, nowned):
         """The compiled pass over the crack facets; returns the state rates."""
         z = self.stage_state
-        S0, cS, S_scale = self._separation(t)
         rates = np.empty_like(z)
-        d, c = self.damage, self.contact
         with self._r.localForm() as rl:  # zero except between a stage and its finish
-            kernels.interface_stage(X, Rc, rl.array, nowned, rates, self._P, self._I, self.nq, self._nb, z[0], z[1],
-                                    S0, cS, S_scale, c.regularized, c.delta0, c.w0,
-                                    0.0 if c.penalty is None else float(c.penalty), d.beta, d.s_onset, d.s_bar, d.a)
+            kernels.interface_stage(X, Rc, rl.array, nowned, rates, self._facets, kernels.State(z[0], z[1]),
+                                    kernels.Separation(*self._separation(t)), self._laws)
         return rates
 
     def _finish(self, out, cells):

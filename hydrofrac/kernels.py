@@ -17,6 +17,8 @@ cells and dof blocks) are packed into two records per facet (:func:`pack_facets`
 """
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numpy as np
 
 from ._jit import njit, prefetch
@@ -32,6 +34,22 @@ from .riemann import (bonded_pt, combine_point, damage_rate_pt, effective_stress
 #       quadrature weights (nq), phi_+ (nq, nb), phi_- (nq, nb)
 #   I (nf, 2 + 2 nb) int: cell_+, cell_-, dofs_+ (nb), dofs_- (nb)
 _NX, _NY, _ZPN, _ZPT, _ZMN, _ZMT, _ZT, _K, _DS, _VS, _TAU, _W = range(12)
+
+# The named records the kernels take and return (numba compiles their fields as constants of
+# the record type, so a name costs nothing at run time):
+#: the crack facets: the packed records and the number of Gauss points and basis functions
+Facets = namedtuple("Facets", "P I nq nb")
+#: the interface state of a stage: damage D and normal opening delta, (nf, nq) each
+State = namedtuple("State", "D delta")
+#: the separation law S = scale S0 + cS <-s_B^1> e_n: S0 (nf, nq, 2), cS (nf, nq)
+Separation = namedtuple("Separation", "S0 cS scale")
+#: the contact map (eta exact or regularised; kappa > 0: the penalty baseline) and the damage law
+Laws = namedtuple("Laws", "regularized delta0 w0 kappa beta s_onset s_bar a")
+#: one Gauss point: traces of both sides, bonded traction, separation traction, the targets
+#: s*, v*+, v*- (local components _n, _t), the stick flag, eta and w' = [[v_S^1]] / v~
+Point = namedtuple("Point", "vpn vpt vmn vmt spn spt smn smt sBn sBt Sn St ssn sst vpsn vpst vmsn vmst gamma eta w")
+#: the per-point output arrays of :func:`interface_targets`: (nf*nq, 2) or (nf*nq,)
+Targets = namedtuple("Targets", "vp vm sp sm s_B S s_star vp_star vm_star eta gamma w")
 
 
 def pack_facets(normal, Zp, Zm, Zt, k, delta_scale, v_scale, tau, weights, phi_p, phi_m, cells_p, cells_m,
@@ -71,78 +89,76 @@ def _trace(X, I, P, f, q, side, nq, nb, nx, ny):
 
 
 @njit
-def _point(X, P, I, f, q, nq, nb, D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa):
+def _point(X, F, f, q, Z, Sep, L):
     """Traces, bonded solution, separation traction, eta and combined targets at Gauss
-    point q of facet f.  Returns (vpn, vpt, vmn, vmt, spn, spt, smn, smt, sBn, sBt, Sn, St,
-    s*n, s*t, v*+n, v*+t, v*-n, v*-t, gamma, eta, w')."""
+    point q of facet f, as a :data:`Point`."""
+    P, I = F.P, F.I
     nx, ny = P[f, _NX], P[f, _NY]
     Zpn, Zpt, Zmn, Zmt = P[f, _ZPN], P[f, _ZPT], P[f, _ZMN], P[f, _ZMT]
-    vpn, vpt, spn, spt = _trace(X, I, P, f, q, 0, nq, nb, nx, ny)
-    vmn, vmt, smn, smt = _trace(X, I, P, f, q, 1, nq, nb, nx, ny)
+    vpn, vpt, spn, spt = _trace(X, I, P, f, q, 0, F.nq, F.nb, nx, ny)
+    vmn, vmt, smn, smt = _trace(X, I, P, f, q, 1, F.nq, F.nb, nx, ny)
     sBn, vBn = bonded_pt(vpn, vmn, spn, smn, Zpn, Zmn)
     sBt, vBt = bonded_pt(vpt, vmt, spt, smt, Zpt, Zmt)
-    Sn = S_scale * S0[f, q, 0] + cS[f, q] * macaulay_pt(-sBn)
-    St = S_scale * S0[f, q, 1]
-    if kappa > 0.0:
-        Sn += penalty_traction_pt(kappa, delta[f, q])
+    Sn = Sep.scale * Sep.S0[f, q, 0] + Sep.cS[f, q] * macaulay_pt(-sBn)
+    St = Sep.scale * Sep.S0[f, q, 1]
+    if L.kappa > 0.0:
+        Sn += penalty_traction_pt(L.kappa, Z.delta[f, q])
     w = separation_jump_pt(sBn, Sn, P[f, _ZT]) / P[f, _VS]  # [[v_S^1]] / v~ (eqs. 11-12)
-    dn = delta[f, q] / P[f, _DS]
-    if kappa > 0.0:
+    dn = Z.delta[f, q] / P[f, _DS]
+    if L.kappa > 0.0:
         e = 0.0
-    elif regularized:
-        e = eta_regularized_pt(dn, w, delta0, w0)
+    elif L.regularized:
+        e = eta_regularized_pt(dn, w, L.delta0, L.w0)
     else:
         e = eta_exact_pt(dn, w)
     r = combine_point(vpn, vpt, vmn, vmt, spn, spt, smn, smt, Zpn, Zpt, Zmn, Zmt,
-                      P[f, _K], D[f, q], e, Sn, St, sBn, vBn, sBt, vBt)
-    return (vpn, vpt, vmn, vmt, spn, spt, smn, smt, sBn, sBt, Sn, St, r[0], r[1], r[2], r[3], r[4], r[5], r[6],
-            e, w)
+                      P[f, _K], Z.D[f, q], e, Sn, St, sBn, vBn, sBt, vBt)
+    return Point(vpn, vpt, vmn, vmt, spn, spt, smn, smt, sBn, sBt, Sn, St, r[0], r[1], r[2], r[3], r[4], r[5],
+                 r[6], e, w)
 
 
 @njit
-def interface_targets(X, P, I, nq, nb, D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa,
-                      vp, vm, sp, sm, sB, S, s_star, vp_star, vm_star, eta, gamma, wn):
-    """Targets at every Gauss point; outputs (last 12 arguments) are (nf*nq, 2) or (nf*nq,).
+def interface_targets(X, F, Z, Sep, L, T):
+    """Targets at every Gauss point into the :data:`Targets` arrays ``T``.
 
-    The separation traction is ``S = S_scale S0 + cS <-s_B^1> e_n`` (the hydraulic law, eq. 16,
-    is of this form; S0 = cS = 0 for traction-free cracks).  ``kappa`` > 0 switches to the
+    The separation traction is ``S = scale S0 + cS <-s_B^1> e_n`` (the hydraulic law, eq. 16,
+    is of this form; S0 = cS = 0 for traction-free cracks).  ``L.kappa`` > 0 switches to the
     penalty baseline: eta = 0 and S^1 += -kappa <-delta>."""
-    for f in range(P.shape[0]):
-        for q in range(nq):
-            i = f * nq + q
-            o = _point(X, P, I, f, q, nq, nb, D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa)
-            vp[i, 0], vp[i, 1], vm[i, 0], vm[i, 1] = o[0], o[1], o[2], o[3]
-            sp[i, 0], sp[i, 1], sm[i, 0], sm[i, 1] = o[4], o[5], o[6], o[7]
-            sB[i, 0], sB[i, 1], S[i, 0], S[i, 1] = o[8], o[9], o[10], o[11]
-            s_star[i, 0], s_star[i, 1] = o[12], o[13]
-            vp_star[i, 0], vp_star[i, 1] = o[14], o[15]
-            vm_star[i, 0], vm_star[i, 1] = o[16], o[17]
-            gamma[i] = o[18]
-            eta[i] = o[19]
-            wn[i] = o[20]
+    for f in range(F.P.shape[0]):
+        for q in range(F.nq):
+            i = f * F.nq + q
+            o = _point(X, F, f, q, Z, Sep, L)
+            T.vp[i, 0], T.vp[i, 1], T.vm[i, 0], T.vm[i, 1] = o.vpn, o.vpt, o.vmn, o.vmt
+            T.sp[i, 0], T.sp[i, 1], T.sm[i, 0], T.sm[i, 1] = o.spn, o.spt, o.smn, o.smt
+            T.s_B[i, 0], T.s_B[i, 1], T.S[i, 0], T.S[i, 1] = o.sBn, o.sBt, o.Sn, o.St
+            T.s_star[i, 0], T.s_star[i, 1] = o.ssn, o.sst
+            T.vp_star[i, 0], T.vp_star[i, 1] = o.vpsn, o.vpst
+            T.vm_star[i, 0], T.vm_star[i, 1] = o.vmsn, o.vmst
+            T.gamma[i] = o.gamma
+            T.eta[i] = o.eta
+            T.w[i] = o.w
 
 
 @njit
-def interface_stage(X, Rc, r, nowned, rates, P, I, nq, nb, D, delta, S0, cS, S_scale, regularized, delta0, w0,
-                    kappa, beta, s_onset, s_bar, a):
+def interface_stage(X, Rc, r, nowned, rates, F, Z, Sep, L):
     """One Runge-Kutta stage on the crack facets in one pass: the targets at every Gauss
     point (as :func:`interface_targets`), their flux corrections added to the residuals
     (cell-major Rc for cells below ``nowned``, dof vector r otherwise; :func:`_scatter`),
     and the state rates (3, nf, nq): damage (eqs. 8-10), normal opening and slip from the
     target velocity jump [[v*]] = v*- - v*+."""
+    P, I = F.P, F.I
     nf = P.shape[0]
     for f in range(nf):
         if f + _AHEAD < nf:
-            _prefetch_cells(X, Rc, I, f + _AHEAD, nb, nowned)
+            _prefetch_cells(X, Rc, I, f + _AHEAD, F.nb, nowned)
         nx, ny = P[f, _NX], P[f, _NY]
-        for q in range(nq):
-            o = _point(X, P, I, f, q, nq, nb, D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa)
-            _flux(Rc, r, P, I, nowned, f, q, nq, nb, nx, ny, P[f, _W + q],
-                  o[0], o[1], o[2], o[3], o[4], o[5], o[6], o[7], o[12], o[13], o[14], o[15], o[16], o[17])
-            Dt = target_damage_pt(effective_stress_pt(o[8], o[9], beta), s_onset, s_bar)
-            rates[0, f, q] = damage_rate_pt(D[f, q], Dt, P[f, _TAU], a)
-            rates[1, f, q] = o[16] - o[14]
-            rates[2, f, q] = o[17] - o[15]
+        for q in range(F.nq):
+            o = _point(X, F, f, q, Z, Sep, L)
+            _flux(Rc, r, P, I, nowned, f, q, F.nq, F.nb, nx, ny, P[f, _W + q], o)
+            Dt = target_damage_pt(effective_stress_pt(o.sBn, o.sBt, L.beta), L.s_onset, L.s_bar)
+            rates[0, f, q] = damage_rate_pt(Z.D[f, q], Dt, P[f, _TAU], L.a)
+            rates[1, f, q] = o.vmsn - o.vpsn
+            rates[2, f, q] = o.vmst - o.vpst
 
 
 #: facets ahead whose cells' field values and residual rows are prefetched: the interface
@@ -189,16 +205,16 @@ def _scatter(Rc, r, P, I, nowned, f, q, side, nq, nb, F0, F1, F2, F3, F4):
 
 
 @njit
-def _flux(Rc, r, P, I, nowned, f, q, nq, nb, nx, ny, w, vpn, vpt, vmn, vmt,
-          spn, spt, smn, smt, ssn, sst, vpsn, vpst, vmsn, vmst):
-    """Flux corrections of both sides at one Gauss point (weight w) (see :func:`_scatter`): momentum
-    ``(s* - s) . w`` and kinematics ``(v* - v) . (tau n)`` with each side's outward normal
-    (side +: n, side -: -n; the side - traction is -s*, so both terms change sign)."""
+def _flux(Rc, r, P, I, nowned, f, q, nq, nb, nx, ny, w, o):
+    """Flux corrections of both sides at one Gauss point (weight w, values ``o``, a
+    :data:`Point`) (see :func:`_scatter`): momentum ``(s* - s) . w`` and kinematics
+    ``(v* - v) . (tau n)`` with each side's outward normal (side +: n, side -: -n; the side -
+    traction is -s*, so both terms change sign)."""
     for side in range(2):
         if side == 0:
-            sgn, dsn, dst, dvn, dvt = 1.0, ssn - spn, sst - spt, vpsn - vpn, vpst - vpt
+            sgn, dsn, dst, dvn, dvt = 1.0, o.ssn - o.spn, o.sst - o.spt, o.vpsn - o.vpn, o.vpst - o.vpt
         else:
-            sgn, dsn, dst, dvn, dvt = -1.0, ssn - smn, sst - smt, vmsn - vmn, vmst - vmt
+            sgn, dsn, dst, dvn, dvt = -1.0, o.ssn - o.smn, o.sst - o.smt, o.vmsn - o.vmn, o.vmst - o.vmt
         dsx, dsy = dsn * nx - dst * ny, dsn * ny + dst * nx  # to Cartesian
         dvx, dvy = dvn * nx - dvt * ny, dvn * ny + dvt * nx
         mx, my = sgn * nx, sgn * ny
