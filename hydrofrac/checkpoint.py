@@ -85,7 +85,7 @@ class Checkpoint:
             self.dir.mkdir(parents=True, exist_ok=True)
         self.comm.barrier()
         if snapshot is None:
-            snapshot = (solver.x.array_r, solver.t, solver.step_count, solver.energy.__dict__, solver._last_rates,
+            snapshot = (solver.x.array_r, solver.t, solver.step_count, solver.energy.__dict__, solver.account.last_rates,
                         [e.checkpoint_state() for e in solver.extensions])
         x, t, step, energy, rates, ext = snapshot
         data = dict(x=np.array(x), t=t, step=step, ranks=self.comm.size, ndofs=solver.num_dofs,
@@ -172,7 +172,7 @@ class Checkpoint:
         for k, v in json.loads(data["energy"]).items():
             setattr(solver.energy, k, v)
         rates = json.loads(data["last_rates"])
-        solver._last_rates = None if rates is None else tuple(rates)
+        solver.account.last_rates = None if rates is None else tuple(rates)
         for i, e in enumerate(solver.extensions):
             e.restore_state({k.split("_", 1)[1]: data[k] for k in data if k.startswith(f"ext{i}_")})
         problem.after_restore()

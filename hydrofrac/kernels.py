@@ -89,30 +89,31 @@ def _trace(X, I, P, f, q, side, nq, nb, nx, ny):
 
 
 @njit
-def _point(X, F, f, q, Z, Sep, L):
+def _point(X, P, I, nq, nb, f, q, D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa):
     """Traces, bonded solution, separation traction, eta and combined targets at Gauss
-    point q of facet f, as a :data:`Point`."""
-    P, I = F.P, F.I
+    point q of facet f, as a :data:`Point`.  (The callers unpack their records into these
+    arguments once per pass: with the records passed down to the point level the stage took
+    0.56 instead of 0.40 us per crack facet, measured on the full-size intersection mesh.)"""
     nx, ny = P[f, _NX], P[f, _NY]
     Zpn, Zpt, Zmn, Zmt = P[f, _ZPN], P[f, _ZPT], P[f, _ZMN], P[f, _ZMT]
-    vpn, vpt, spn, spt = _trace(X, I, P, f, q, 0, F.nq, F.nb, nx, ny)
-    vmn, vmt, smn, smt = _trace(X, I, P, f, q, 1, F.nq, F.nb, nx, ny)
+    vpn, vpt, spn, spt = _trace(X, I, P, f, q, 0, nq, nb, nx, ny)
+    vmn, vmt, smn, smt = _trace(X, I, P, f, q, 1, nq, nb, nx, ny)
     sBn, vBn = bonded_pt(vpn, vmn, spn, smn, Zpn, Zmn)
     sBt, vBt = bonded_pt(vpt, vmt, spt, smt, Zpt, Zmt)
-    Sn = Sep.scale * Sep.S0[f, q, 0] + Sep.cS[f, q] * macaulay_pt(-sBn)
-    St = Sep.scale * Sep.S0[f, q, 1]
-    if L.kappa > 0.0:
-        Sn += penalty_traction_pt(L.kappa, Z.delta[f, q])
+    Sn = S_scale * S0[f, q, 0] + cS[f, q] * macaulay_pt(-sBn)
+    St = S_scale * S0[f, q, 1]
+    if kappa > 0.0:
+        Sn += penalty_traction_pt(kappa, delta[f, q])
     w = separation_jump_pt(sBn, Sn, P[f, _ZT]) / P[f, _VS]  # [[v_S^1]] / v~ (eqs. 11-12)
-    dn = Z.delta[f, q] / P[f, _DS]
-    if L.kappa > 0.0:
+    dn = delta[f, q] / P[f, _DS]
+    if kappa > 0.0:
         e = 0.0
-    elif L.regularized:
-        e = eta_regularized_pt(dn, w, L.delta0, L.w0)
+    elif regularized:
+        e = eta_regularized_pt(dn, w, delta0, w0)
     else:
         e = eta_exact_pt(dn, w)
     r = combine_point(vpn, vpt, vmn, vmt, spn, spt, smn, smt, Zpn, Zpt, Zmn, Zmt,
-                      P[f, _K], Z.D[f, q], e, Sn, St, sBn, vBn, sBt, vBt)
+                      P[f, _K], D[f, q], e, Sn, St, sBn, vBn, sBt, vBt)
     return Point(vpn, vpt, vmn, vmt, spn, spt, smn, smt, sBn, sBt, Sn, St, r[0], r[1], r[2], r[3], r[4], r[5],
                  r[6], e, w)
 
@@ -124,10 +125,12 @@ def interface_targets(X, F, Z, Sep, L, T):
     The separation traction is ``S = scale S0 + cS <-s_B^1> e_n`` (the hydraulic law, eq. 16,
     is of this form; S0 = cS = 0 for traction-free cracks).  ``L.kappa`` > 0 switches to the
     penalty baseline: eta = 0 and S^1 += -kappa <-delta>."""
-    for f in range(F.P.shape[0]):
-        for q in range(F.nq):
-            i = f * F.nq + q
-            o = _point(X, F, f, q, Z, Sep, L)
+    P, I, nq, nb, D, delta, S0, cS, scale = F.P, F.I, F.nq, F.nb, Z.D, Z.delta, Sep.S0, Sep.cS, Sep.scale
+    reg, d0, w0, kappa = L.regularized, L.delta0, L.w0, L.kappa
+    for f in range(P.shape[0]):
+        for q in range(nq):
+            i = f * nq + q
+            o = _point(X, P, I, nq, nb, f, q, D, delta, S0, cS, scale, reg, d0, w0, kappa)
             T.vp[i, 0], T.vp[i, 1], T.vm[i, 0], T.vm[i, 1] = o.vpn, o.vpt, o.vmn, o.vmt
             T.sp[i, 0], T.sp[i, 1], T.sm[i, 0], T.sm[i, 1] = o.spn, o.spt, o.smn, o.smt
             T.s_B[i, 0], T.s_B[i, 1], T.S[i, 0], T.S[i, 1] = o.sBn, o.sBt, o.Sn, o.St
@@ -146,17 +149,19 @@ def interface_stage(X, Rc, r, nowned, rates, F, Z, Sep, L):
     (cell-major Rc for cells below ``nowned``, dof vector r otherwise; :func:`_scatter`),
     and the state rates (3, nf, nq): damage (eqs. 8-10), normal opening and slip from the
     target velocity jump [[v*]] = v*- - v*+."""
-    P, I = F.P, F.I
+    P, I, nq, nb, D, delta, S0, cS, scale = F.P, F.I, F.nq, F.nb, Z.D, Z.delta, Sep.S0, Sep.cS, Sep.scale
+    reg, d0, w0, kappa, beta, s_onset, s_bar, a = L
     nf = P.shape[0]
     for f in range(nf):
         if f + _AHEAD < nf:
-            _prefetch_cells(X, Rc, I, f + _AHEAD, F.nb, nowned)
+            _prefetch_cells(X, Rc, I, f + _AHEAD, nb, nowned)
         nx, ny = P[f, _NX], P[f, _NY]
-        for q in range(F.nq):
-            o = _point(X, F, f, q, Z, Sep, L)
-            _flux(Rc, r, P, I, nowned, f, q, F.nq, F.nb, nx, ny, P[f, _W + q], o)
-            Dt = target_damage_pt(effective_stress_pt(o.sBn, o.sBt, L.beta), L.s_onset, L.s_bar)
-            rates[0, f, q] = damage_rate_pt(Z.D[f, q], Dt, P[f, _TAU], L.a)
+        for q in range(nq):
+            o = _point(X, P, I, nq, nb, f, q, D, delta, S0, cS, scale, reg, d0, w0, kappa)
+            _flux(Rc, r, P, I, nowned, f, q, nq, nb, nx, ny, P[f, _W + q], o.vpn, o.vpt, o.vmn, o.vmt,
+                  o.spn, o.spt, o.smn, o.smt, o.ssn, o.sst, o.vpsn, o.vpst, o.vmsn, o.vmst)
+            Dt = target_damage_pt(effective_stress_pt(o.sBn, o.sBt, beta), s_onset, s_bar)
+            rates[0, f, q] = damage_rate_pt(D[f, q], Dt, P[f, _TAU], a)
             rates[1, f, q] = o.vmsn - o.vpsn
             rates[2, f, q] = o.vmst - o.vpst
 
@@ -205,16 +210,18 @@ def _scatter(Rc, r, P, I, nowned, f, q, side, nq, nb, F0, F1, F2, F3, F4):
 
 
 @njit
-def _flux(Rc, r, P, I, nowned, f, q, nq, nb, nx, ny, w, o):
-    """Flux corrections of both sides at one Gauss point (weight w, values ``o``, a
-    :data:`Point`) (see :func:`_scatter`): momentum ``(s* - s) . w`` and kinematics
-    ``(v* - v) . (tau n)`` with each side's outward normal (side +: n, side -: -n; the side -
-    traction is -s*, so both terms change sign)."""
+def _flux(Rc, r, P, I, nowned, f, q, nq, nb, nx, ny, w, vpn, vpt, vmn, vmt,
+          spn, spt, smn, smt, ssn, sst, vpsn, vpst, vmsn, vmst):
+    """Flux corrections of both sides at one Gauss point (weight w) (see :func:`_scatter`):
+    momentum ``(s* - s) . w`` and kinematics ``(v* - v) . (tau n)`` with each side's outward
+    normal (side +: n, side -: -n; the side - traction is -s*, so both terms change sign).
+    The values come as scalars (fields of a :data:`Point`), like the other point-level
+    arguments (see :func:`_point`)."""
     for side in range(2):
         if side == 0:
-            sgn, dsn, dst, dvn, dvt = 1.0, o.ssn - o.spn, o.sst - o.spt, o.vpsn - o.vpn, o.vpst - o.vpt
+            sgn, dsn, dst, dvn, dvt = 1.0, ssn - spn, sst - spt, vpsn - vpn, vpst - vpt
         else:
-            sgn, dsn, dst, dvn, dvt = -1.0, o.ssn - o.smn, o.sst - o.smt, o.vmsn - o.vmn, o.vmst - o.vmt
+            sgn, dsn, dst, dvn, dvt = -1.0, ssn - smn, sst - smt, vmsn - vmn, vmst - vmt
         dsx, dsy = dsn * nx - dst * ny, dsn * ny + dst * nx  # to Cartesian
         dvx, dvy = dvn * nx - dvt * ny, dvn * ny + dvt * nx
         mx, my = sgn * nx, sgn * ny

@@ -139,13 +139,13 @@ def _energy_row(problem) -> Dict:
 def _snapshot(problem):
     """The state a blow-up falls back to: fields, time, budget, extension states."""
     s = problem.solver
-    return (s.x.array_r.copy(), s.t, s.step_count, copy.deepcopy(s.energy.__dict__), s._last_rates,
+    return (s.x.array_r.copy(), s.t, s.step_count, copy.deepcopy(s.energy.__dict__), s.account.last_rates,
             [e.checkpoint_state() for e in s.extensions])
 
 
 def _restore_snapshot(problem, snap):
     s = problem.solver
-    x, s.t, s.step_count, energy, s._last_rates, ext = snap
+    x, s.t, s.step_count, energy, s.account.last_rates, ext = snap
     s.x.array[:] = x
     for k, v in energy.items():
         setattr(s.energy, k, v)

@@ -111,8 +111,8 @@ def continue_run(old, new):
     new.energy = copy.deepcopy(old.energy)
     new.energy.kinetic, new.energy.strain = new.energies()
     new.energy.transfer_loss += before - new.energy.total  # reported, so the budget still closes
-    new._last_rates = old._last_rates  # the trapezoid of the next step starts from the old rates
-    new._recent_balance = list(old._recent_balance)
+    new.account.last_rates = old.account.last_rates  # the trapezoid of the next step starts from the old rates
+    new.account.recent_balance = list(old.account.recent_balance)
     return before, new.energy.total
 
 

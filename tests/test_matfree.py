@@ -102,7 +102,7 @@ def test_matfree_energy_terms_equal_assembled(p):
         solver = problem(data, p, operator)
         random_rhs(solver)  # sets the random state
         kin, strain = solver.energies()
-        _, _, diss = solver.energy_rates()
+        _, _, diss = solver.account.rates()
         vals.append(np.array([kin, strain, diss]))
     assert np.all(vals[0] > 0)
     np.testing.assert_allclose(vals[1], vals[0], rtol=1e-12)
