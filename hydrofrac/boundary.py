@@ -134,3 +134,77 @@ BoundaryCondition = Union[Traction, Velocity, Absorbing, Symmetry, Slider, Outer
 
 #: boundary conditions whose power counts as "radiated" in the energy budget
 RADIATING = (Absorbing, OuterState)
+
+
+# ----------------------------------------------------------------------------- boundary data
+# What the solver's forms need of the boundary conditions: the facet tags for ds (with the
+# traction-free rest of the boundary), and each condition's data as UFL expressions.
+
+
+def check_boundary_tags(comm, facet_tags, bcs):
+    """Each boundary condition has its own tag, and every tag is in the mesh's facet tags."""
+    tags = [bc.tag for bc in bcs]
+    if len(set(tags)) != len(tags):
+        raise ValueError(f"each boundary tag may carry one boundary condition; got tags {tags}")
+    if not tags:
+        return
+    local = set() if facet_tags is None else set(np.unique(facet_tags.values).tolist())
+    present = set().union(*comm.allgather(local))
+    missing = sorted(set(tags) - present)
+    if missing:
+        raise ValueError(f"boundary tag(s) {missing} are not in the mesh's facet tags {sorted(present)}; "
+                         "fix the tag in the boundary condition or the mesh generator")
+
+
+def boundary_tags(mesh, facet_tags, bcs):
+    """Facet tags for ds: the user's tags plus a fresh tag on exterior facets that
+    carry no boundary condition (traction-free). Returns (meshtags, free tag or None)."""
+    from mpi4py import MPI
+
+    from . import compat
+    tdim = mesh.topology.dim
+    ext = compat.exterior_facet_indices(mesh)
+    idx = np.zeros(0, dtype=np.int32)
+    val = np.zeros(0, dtype=np.int32)
+    if facet_tags is not None:
+        idx, val = facet_tags.indices, facet_tags.values
+    bc_tags = [bc.tag for bc in bcs]
+    free = np.setdiff1d(ext, idx[np.isin(val, bc_tags)])
+    if mesh.comm.allreduce(free.size, op=MPI.SUM) == 0:
+        return facet_tags, None
+    free_tag = int(mesh.comm.allreduce(int(val.max()) if val.size else 0, op=MPI.MAX)) + 1
+    keep = ~np.isin(idx, free)
+    mt = compat.meshtags(mesh, tdim - 1, np.r_[idx[keep], free], np.r_[val[keep], np.full(free.size, free_tag)])
+    return mt, free_tag
+
+
+def ufl_data(bc, n, unit=False, uext=None):
+    """Per-component UFL data of a boundary condition.
+
+    unit=False: the constant part; unit=True: the part multiplied by the history;
+    uext: outer-state Function/trial for OuterState.
+    """
+    import ufl
+
+    from .forms import elastodynamics as ef
+    t = ef.tangent(n)
+    zero = ufl.as_ufl(0.0)
+    if isinstance(bc, Traction):
+        if unit:
+            S = -n  # times p(t)
+        else:
+            S = ufl.as_matrix(bc.stress) * n
+        return (ufl.dot(S, n), ufl.dot(S, t))
+    if isinstance(bc, Velocity):
+        V = ufl.as_vector(bc.value)
+        return (ufl.dot(V, n), ufl.dot(V, t))
+    if isinstance(bc, Absorbing):
+        S = ufl.as_matrix(bc.stress) * n
+        return ((zero, ufl.dot(S, n)), (zero, ufl.dot(S, t)))
+    if isinstance(bc, OuterState):
+        if uext is None:
+            return ((zero, zero), (zero, zero))
+        ve, se = ef.fields(uext)
+        S = se * n
+        return ((ufl.dot(ve, n), ufl.dot(S, n)), (ufl.dot(ve, t), ufl.dot(S, t)))
+    return (zero, zero)  # Symmetry, Slider: homogeneous

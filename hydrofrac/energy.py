@@ -16,7 +16,7 @@ import ufl
 from mpi4py import MPI
 
 from . import compat
-from .boundary import RADIATING, OuterState, Traction, Velocity
+from .boundary import RADIATING, OuterState, Traction, Velocity, ufl_data
 from .forms import elastodynamics as ef
 
 @dataclass
@@ -106,15 +106,15 @@ class EnergyAccount:
             if isinstance(bc, Traction):
                 g = compat.constant(mesh, 0.0)
                 self._hist_const[bc.tag] = (bc.pressure, g)
-                data = tuple(d + g * du for d, du in zip(solver._bc_data(bc, n), solver._bc_data(bc, n, unit=True)))
+                data = tuple(d + g * du for d, du in zip(ufl_data(bc, n), ufl_data(bc, n, unit=True)))
             elif isinstance(bc, Velocity) and bc.history is not None:
                 g = compat.constant(mesh, 0.0)
                 self._hist_const[bc.tag] = (bc.history, g)
-                data = tuple(g * d for d in solver._bc_data(bc, n))
+                data = tuple(g * d for d in ufl_data(bc, n))
             elif isinstance(bc, OuterState):
-                data = solver._bc_data(bc, n, uext=solver.outer[[o[0].tag for o in solver.outer].index(bc.tag)][1])
+                data = ufl_data(bc, n, uext=solver.outer[[o[0].tag for o in solver.outer].index(bc.tag)][1])
             else:
-                data = solver._bc_data(bc, n)
+                data = ufl_data(bc, n)
             D = ef.boundary_dissipation(self.u, rho, lam, mu, n, bc.kinds, data, ds(bc.tag))
             bdiss = D if bdiss is None else bdiss + D
             if (set(bc.kinds) == {"velocity", "traction"} and not isinstance(bc, (Traction, Velocity))

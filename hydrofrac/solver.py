@@ -25,7 +25,7 @@ from petsc4py import PETSc
 
 from . import compat
 from ._jit import njit
-from .boundary import Absorbing, BoundaryCondition, OuterState, Traction, Velocity
+from .boundary import Absorbing, boundary_tags, check_boundary_tags, ufl_data, BoundaryCondition, OuterState, Traction, Velocity
 from .element import CellGeometry, reference_element
 from .forms import elastodynamics as ef
 from .energy import BlowUpError, EnergyAccount, EnergyBudget  # noqa: F401  (BlowUpError: the solver's error)
@@ -169,7 +169,7 @@ class Solver:
             raise ValueError(f"sigma0 must be a symmetric 2x2 stress; got {sigma0!r}")
         self.facet_tags = facet_tags
         self.bcs = list(bcs)
-        self._check_boundary_tags()
+        check_boundary_tags(self.comm, facet_tags, self.bcs)
         self.timers = Timers()
 
         self.geometry = CellGeometry(mesh)
@@ -216,19 +216,6 @@ class Solver:
         self.timers.add("setup", time.perf_counter() - t_setup)
 
     # ------------------------------------------------------------------ set-up
-    def _check_boundary_tags(self):
-        tags = [bc.tag for bc in self.bcs]
-        if len(set(tags)) != len(tags):
-            raise ValueError(f"each boundary tag may carry one boundary condition; got tags {tags}")
-        if not tags:
-            return
-        local = set() if self.facet_tags is None else set(np.unique(self.facet_tags.values).tolist())
-        present = set().union(*self.comm.allgather(local))
-        missing = sorted(set(tags) - present)
-        if missing:
-            raise ValueError(f"boundary tag(s) {missing} are not in the mesh's facet tags {sorted(present)}; "
-                             "fix the tag in the boundary condition or the mesh generator")
-
     def _setup_materials(self, materials, cell_tags):
         ncells = compat.num_cells_with_ghosts(self.mesh)
         if isinstance(materials, Material):
@@ -276,41 +263,13 @@ class Solver:
         idx = self._bulk_facets()
         return compat.meshtags(self.mesh, tdim - 1, idx, np.full(idx.size, BULK_FACET))
 
-    def _bc_data(self, bc, n, unit=False, uext=None):
-        """Per-component UFL data of a boundary condition.
-
-        unit=False: the constant part; unit=True: the part multiplied by the history;
-        uext: outer-state Function/trial for OuterState.
-        """
-        t = ef.tangent(n)
-        zero = ufl.as_ufl(0.0)
-        if isinstance(bc, Traction):
-            if unit:
-                S = -n  # times p(t)
-            else:
-                S = ufl.as_matrix(bc.stress) * n
-            return (ufl.dot(S, n), ufl.dot(S, t))
-        if isinstance(bc, Velocity):
-            V = ufl.as_vector(bc.value)
-            return (ufl.dot(V, n), ufl.dot(V, t))
-        if isinstance(bc, Absorbing):
-            S = ufl.as_matrix(bc.stress) * n
-            return ((zero, ufl.dot(S, n)), (zero, ufl.dot(S, t)))
-        if isinstance(bc, OuterState):
-            if uext is None:
-                return ((zero, zero), (zero, zero))
-            ve, se = ef.fields(uext)
-            S = se * n
-            return ((ufl.dot(ve, n), ufl.dot(S, n)), (ufl.dot(ve, t), ufl.dot(S, t)))
-        return (zero, zero)  # Symmetry, Slider: homogeneous
-
     def _build_operators(self):
         mesh, V = self.mesh, self.V
         U, W = ufl.TrialFunction(V), ufl.TestFunction(V)
         Z5 = ufl.as_vector([0.0] * ef.NCOMP)
         dx = compat.measure("dx", mesh)
         dS = compat.measure("dS", mesh, self._interior_facet_tags())
-        btags, free_tag = self._boundary_tags()
+        btags, free_tag = boundary_tags(mesh, facet_tags=self.facet_tags, bcs=self.bcs)
         ds = compat.measure("ds", mesh, btags)
         n = ufl.FacetNormal(mesh)
         rho, lam, mu = self.rho, self.lam, self.mu
@@ -353,11 +312,11 @@ class Solver:
         Lconst = None
         for bc in self.bcs:
             if isinstance(bc, (Traction, Velocity, Absorbing)):
-                data = self._bc_data(bc, n)
+                data = ufl_data(bc, n)
                 if isinstance(bc, Traction):
                     L = ef.boundary_flux(Z5, W, rho, lam, mu, n, bc.kinds, data, ds(bc.tag))
                     Lconst = L if Lconst is None else Lconst + L
-                    Lp = ef.boundary_flux(Z5, W, rho, lam, mu, n, bc.kinds, self._bc_data(bc, n, unit=True), ds(bc.tag))
+                    Lp = ef.boundary_flux(Z5, W, rho, lam, mu, n, bc.kinds, ufl_data(bc, n, unit=True), ds(bc.tag))
                     self.c_hist.append((bc.pressure, self._minv_vector(Lp)))
                 elif isinstance(bc, Velocity) and bc.history is not None:
                     Lv = ef.boundary_flux(Z5, W, rho, lam, mu, n, bc.kinds, data, ds(bc.tag))
@@ -368,7 +327,7 @@ class Solver:
             elif isinstance(bc, OuterState):
                 uext = compat.function(V, f"outer_{bc.tag}")
                 Uext = ufl.TrialFunction(V)
-                Bf = ef.boundary_flux(Z5, W, rho, lam, mu, n, bc.kinds, self._bc_data(bc, n, uext=Uext), ds(bc.tag))
+                Bf = ef.boundary_flux(Z5, W, rho, lam, mu, n, bc.kinds, ufl_data(bc, n, uext=Uext), ds(bc.tag))
                 B = compat.assemble_matrix(compat.form(Bf))
                 MB = self.Minv.matMult(B)
                 B.destroy()
@@ -382,24 +341,6 @@ class Solver:
 
         self._work = [self.x_like() for _ in range(len(TABLEAUX[self.scheme][1]) + 2)]
         self.account = EnergyAccount(self, ds, free_tag, n)
-
-    def _boundary_tags(self):
-        """Facet tags for ds: the user's tags plus a fresh tag on exterior facets that
-        carry no boundary condition (traction-free). Returns (meshtags, free tag or None)."""
-        tdim = self.mesh.topology.dim
-        ext = compat.exterior_facet_indices(self.mesh)
-        idx = np.zeros(0, dtype=np.int32)
-        val = np.zeros(0, dtype=np.int32)
-        if self.facet_tags is not None:
-            idx, val = self.facet_tags.indices, self.facet_tags.values
-        bc_tags = [bc.tag for bc in self.bcs]
-        free = np.setdiff1d(ext, idx[np.isin(val, bc_tags)])
-        if self.comm.allreduce(free.size, op=MPI.SUM) == 0:
-            return self.facet_tags, None
-        free_tag = int(self.comm.allreduce(int(val.max()) if val.size else 0, op=MPI.MAX)) + 1
-        keep = ~np.isin(idx, free)
-        mt = compat.meshtags(self.mesh, tdim - 1, np.r_[idx[keep], free], np.r_[val[keep], np.full(free.size, free_tag)])
-        return mt, free_tag
 
     def _inverse_mass(self):
         """Block-diagonal M^{-1} in closed form: per cell (M_ref^{-1} kron B_c^{-1}) / |det J|.
