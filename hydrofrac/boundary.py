@@ -148,12 +148,9 @@ def check_boundary_tags(comm, facet_tags, bcs):
         raise ValueError(f"each boundary tag may carry one boundary condition; got tags {tags}")
     if not tags:
         return
-    local = set() if facet_tags is None else set(np.unique(facet_tags.values).tolist())
-    present = set().union(*comm.allgather(local))
-    missing = sorted(set(tags) - present)
-    if missing:
-        raise ValueError(f"boundary tag(s) {missing} are not in the mesh's facet tags {sorted(present)}; "
-                         "fix the tag in the boundary condition or the mesh generator")
+    from . import compat
+    compat.require_tags(comm, facet_tags, tags, "boundary", "the mesh's facet tags",
+                        "fix the tag in the boundary condition or the mesh generator")
 
 
 def boundary_tags(mesh, facet_tags, bcs):

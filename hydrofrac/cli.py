@@ -139,17 +139,20 @@ def add_growth_arguments(parser):
                              "boundary stops them)")
 
 
+#: the growth options' valid values: (option, test, what a valid value is); None passes
+_GROWTH_CHECKS = (
+    ("growth_r", lambda v: v > 0, "> 0 (a distance in facet sizes)"),
+    ("growth_da", lambda v: v > 0, "> 0 (a length in facet sizes)"),
+    ("growth_beta", lambda v: v >= 0, ">= 0"),
+    ("growth_cod_relax", lambda v: 0 < v <= 1, "in (0, 1]"),
+    ("growth_max_radius", lambda v: v > 0, "> 0 m"),
+    ("growth_cod_window", lambda v: v > 0, "> 0 (a distance in facet sizes)"),
+)
+
+
 def check_growth_arguments(parser, args):
     """Reject bad growth options before any meshing (argparse's error: exit 2, with the fix)."""
-    if not args.growth_r > 0:
-        parser.error(f"--growth-r must be > 0 (a distance in facet sizes); got {args.growth_r}")
-    if not args.growth_da > 0:
-        parser.error(f"--growth-da must be > 0 (a length in facet sizes); got {args.growth_da}")
-    if not args.growth_beta >= 0:
-        parser.error(f"--growth-beta must be >= 0; got {args.growth_beta}")
-    if not 0 < args.growth_cod_relax <= 1:
-        parser.error(f"--growth-cod-relax must be in (0, 1]; got {args.growth_cod_relax}")
-    if args.growth_max_radius is not None and not args.growth_max_radius > 0:
-        parser.error(f"--growth-max-radius must be > 0 m; got {args.growth_max_radius}")
-    if args.growth_cod_window is not None and not args.growth_cod_window > 0:
-        parser.error(f"--growth-cod-window must be > 0 (a distance in facet sizes); got {args.growth_cod_window}")
+    for name, ok, valid in _GROWTH_CHECKS:
+        v = getattr(args, name)
+        if v is not None and not ok(v):
+            parser.error(f"--{name.replace('_', '-')} must be {valid}; got {v}")

@@ -319,6 +319,22 @@ def eval_function(u, points, cells):
     return u.eval(pts, np.asarray(cells, dtype=np.int32))
 
 
+def tags_present(comm, tags) -> set:
+    """The tag values present on any rank: ``tags`` is a MeshTags (or None) or an array of
+    values (collective)."""
+    values = np.zeros(0) if tags is None else (tags.values if hasattr(tags, "values") else np.asarray(tags))
+    return set().union(*comm.allgather(set(np.unique(values).tolist())))
+
+
+def require_tags(comm, tags, wanted, what, where, fix):
+    """Raise ValueError on every rank if any of ``wanted`` is missing from ``tags``
+    (:func:`tags_present`), naming them, what is present and the fix."""
+    present = tags_present(comm, tags)
+    missing = sorted(set(wanted) - present)
+    if missing:
+        raise ValueError(f"{what} tag(s) {missing} are not in {where} {sorted(present)}; {fix}")
+
+
 def cells_containing(mesh, points):
     """(point index, local cell) pairs of every cell (owned or ghost) that contains one of the
     ``points`` (m, 2), by DOLFINx's bounding-box tree (0.9: ``bb_tree`` and the same

@@ -153,10 +153,8 @@ class Hydraulics:
         self.iface = iface
         self.params = params
         comm = iface.solver.comm
-        present = set().union(*comm.allgather(set(np.unique(iface.crack_tag).tolist())))
-        missing = sorted(set(params.sources) - present)
-        if missing:
-            raise ValueError(f"hydraulic source tag(s) {missing} are not crack tags {sorted(present)}")
+        compat.require_tags(comm, iface.crack_tag, params.sources, "hydraulic source", "the crack tags",
+                            "give the facet tag of a perforation")
         mesh = iface.solver.mesh
         tdim = mesh.topology.dim
         f_off, f_arr = compat.connectivity(mesh, tdim - 1, 0)

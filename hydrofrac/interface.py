@@ -132,12 +132,8 @@ def crack_facet_indices(mesh, facet_tags, cracks: Sequence[Crack]):
     tags = [c.tag for c in cracks]
     if len(set(tags)) != len(tags):
         raise ValueError(f"crack tags must be distinct; got {tags}")
-    local = set() if facet_tags is None else set(np.unique(facet_tags.values).tolist())
-    present = set().union(*comm.allgather(local))
-    missing = sorted(set(tags) - present)
-    if missing:
-        raise ValueError(f"crack tag(s) {missing} are not in the mesh's facet tags {sorted(present)}; "
-                         "give the crack's Gmsh physical group tag")
+    compat.require_tags(comm, facet_tags, tags, "crack", "the mesh's facet tags",
+                        "give the crack's Gmsh physical group tag")
     if not tags:
         return np.zeros(0, dtype=np.int32)
     idx = facet_tags.indices[np.isin(facet_tags.values, tags)]

@@ -91,6 +91,7 @@ class Monitor:
     * ``history(problem) -> dict``: more columns of the history row;
     * ``accuracy(problem) -> dict``: the run's measures, in the summary's ``accuracy``;
     * ``remeshed(old, new)`` when a remesh replaced the problem;
+    * ``report(accuracy) -> str``: a closing line, printed after the summary;
     * ``state()`` / ``restore(state)``: the record a checkpoint keeps (by default the
       attributes named in ``checkpointed``), so that a restarted run reports what a
       straight one does.
@@ -109,6 +110,10 @@ class Monitor:
 
     def remeshed(self, old, new):
         pass
+
+    def report(self, accuracy: Dict) -> Optional[str]:
+        """A line for the end of the run (rank 0 prints it after the summary), or None."""
+        return None
 
     def state(self) -> Dict:
         return {k: getattr(self, k) for k in self.checkpointed}
@@ -232,6 +237,11 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
         restart_step = None
     probes = None if options.probes is None else ProbeWriter(options.probes, out / "probes.csv", comm, restart_step)
 
+    def close():
+        history.close()
+        if probes is not None:
+            probes.close()
+
     def write_history():
         row = _energy_row(problem)
         for m in monitors:
@@ -292,9 +302,7 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
                            f"[hydrofrac] stopped. The last good state (before the extension) is in "
                            f"{series.pvd_path} and {ckpt.dir}")
                     log(comm, msg)
-                    history.close()
-                    if probes is not None:
-                        probes.close()
+                    close()
                     raise RuntimeError(msg) from err
                 if new is not None:
                     for m in monitors:
@@ -341,9 +349,7 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
         msg = (f"{err}\n[hydrofrac] stopped. The last good state (t = {solver.t:.6g} s, before the blow-up at "
                f"t = {t_bad:.6g} s, with its energy budget) is in {series.pvd_path} and {ckpt.dir}")
         log(comm, msg)
-        history.close()
-        if probes is not None:
-            probes.close()
+        close()
         raise BlowUpError(msg) from None
     wall = time.perf_counter() - wall0
     loop["finished_at"] = t_end
@@ -352,9 +358,7 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
     else:
         snap, (prob, frame_list, done, mon, lp, geom) = before_last
         save(snap, (prob, frame_list, done, mon, dumps({**loads(lp), "finished_at": t_end}), geom))
-    history.close()
-    if probes is not None:
-        probes.close()
+    close()
 
     accuracy = dict(remesh.report()) if hasattr(remesh, "report") else {}
     for m in monitors:
@@ -365,6 +369,10 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
                              "checkpoint": str(ckpt.dir),
                              **({"probes": str(out / "probes.csv")} if probes is not None else {})})
     write_summary(summary, out, comm)
+    for m in monitors:
+        line = m.report(accuracy)
+        if line:
+            log(comm, line)
     return summary
 
 

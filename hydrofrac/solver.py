@@ -25,10 +25,11 @@ from petsc4py import PETSc
 
 from . import compat
 from ._jit import njit
-from .boundary import Absorbing, boundary_tags, check_boundary_tags, ufl_data, BoundaryCondition, OuterState, Traction, Velocity
+from .boundary import (Absorbing, BoundaryCondition, OuterState, Traction, Velocity, boundary_tags, check_boundary_tags,
+                       ufl_data)
 from .element import CellGeometry, reference_element
 from .forms import elastodynamics as ef
-from .energy import BlowUpError, EnergyAccount, EnergyBudget  # noqa: F401  (BlowUpError: the solver's error)
+from .energy import BlowUpError, EnergyAccount, EnergyBudget  # noqa: F401  (BlowUpError: raised here)
 from .material import Material, plane_strain_kappa
 
 #: Documented CFL constant C per scheme: dt = C h_min / ((2p + 1) c_d), h_min = smallest
@@ -229,10 +230,8 @@ class Solver:
             cell_mat = np.full(ncells, -1, dtype=np.int32)
             for tag, i in tag_index.items():
                 cell_mat[cell_tags.indices[cell_tags.values == tag]] = i
-            present = set().union(*self.comm.allgather(set(np.unique(cell_tags.values).tolist())))
-            missing = sorted(set(materials) - present)
-            if missing:
-                raise ValueError(f"material cell tag(s) {missing} are not in the mesh's cell tags {sorted(present)}")
+            compat.require_tags(self.comm, cell_tags, materials, "material cell", "the mesh's cell tags",
+                                "give a Material for the cell tags of the mesh")
             nloc = compat.num_cells_local(self.mesh)
             if np.any(cell_mat[:nloc] < 0):
                 raise ValueError("some cells have a tag without a material; give a Material for every cell tag")

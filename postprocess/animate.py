@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Optional
 
 from . import figures
-from .rundata import load_run, subsample
+from .rundata import load_run, subsample, tool_main
 
 
 def animate(source, kind: str = "energy", out=None, max_frames: int = 60, size=(560, 420), fps: float = 8.0,
@@ -78,14 +78,9 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=None, help="GIF file (default RUN/figures/<name>_<kind>.gif)")
     args = parser.parse_args(argv)
     crop = args.crop[0] if len(args.crop) == 1 else [float(c) for c in args.crop]
-    try:
-        gif = animate(args.source, kind=args.kind, out=args.out, max_frames=args.max_frames, size=tuple(args.size),
-                      fps=args.fps, crop=crop, log_decades=None if args.linear else args.log)
-    except (FileNotFoundError, KeyError, ValueError) as err:
-        print(f"animate: {err}", file=sys.stderr)
-        return 2
-    print(gif)
-    return 0
+    return tool_main("animate", lambda: animate(args.source, kind=args.kind, out=args.out, max_frames=args.max_frames,
+                                                size=tuple(args.size), fps=args.fps, crop=crop,
+                                                log_decades=None if args.linear else args.log))
 
 
 if __name__ == "__main__":

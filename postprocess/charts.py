@@ -254,14 +254,7 @@ def main(argv=None) -> int:
     parser.add_argument("--max-frames", type=int, default=None,
                         help="read at most this many crack frames (evenly spread; default all)")
     args = parser.parse_args(argv)
-    try:
-        pngs = make_charts(args.source, out=args.out, max_frames=args.max_frames)
-    except (FileNotFoundError, KeyError, ValueError) as err:
-        print(f"charts: {err}", file=sys.stderr)
-        return 2
-    for p in pngs:
-        print(p)
-    return 0
+    return rundata.tool_main("charts", lambda: make_charts(args.source, out=args.out, max_frames=args.max_frames))
 
 
 if __name__ == "__main__":

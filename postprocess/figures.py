@@ -426,17 +426,10 @@ def main(argv=None) -> int:
                         help="sequence sheets with 256 colours (small files, e.g. for a gallery)")
     args = parser.parse_args(argv)
     crop = args.crop[0] if len(args.crop) == 1 else [float(c) for c in args.crop]
-    try:
-        pngs = make_figures(args.source, kinds=args.kind, times=args.times, count=args.frames, out=args.out,
-                            size=tuple(args.size), crop=crop, sheet=not args.no_sheet,
-                            log_decades=None if args.linear else args.log, sheet_width=args.sheet_width,
-                            palette=args.palette, columns=args.columns)
-    except (FileNotFoundError, KeyError, ValueError) as err:
-        print(f"figures: {err}", file=sys.stderr)
-        return 2
-    for p in pngs:
-        print(p)
-    return 0
+    return rundata.tool_main("figures", lambda: make_figures(
+        args.source, kinds=args.kind, times=args.times, count=args.frames, out=args.out, size=tuple(args.size),
+        crop=crop, sheet=not args.no_sheet, log_decades=None if args.linear else args.log,
+        sheet_width=args.sheet_width, palette=args.palette, columns=args.columns))
 
 
 if __name__ == "__main__":

@@ -267,6 +267,21 @@ def crack_statistics(run: Run, max_frames: Optional[int] = None) -> Dict[str, np
     return {k: np.array([r.get(k, np.nan) for r in rows]) for k in rows[0]}
 
 
+def tool_main(name: str, make) -> int:
+    """The exit of a postprocessing command: run ``make()`` (it returns a path or a list of
+    paths), print what it wrote, one per line, and return 0; on a missing file or bad input,
+    print ``name: reason`` on stderr and return 2."""
+    import sys
+    try:
+        out = make()
+    except (FileNotFoundError, KeyError, ValueError) as err:
+        print(f"{name}: {err}", file=sys.stderr)
+        return 2
+    for p in out if isinstance(out, (list, tuple)) else [out]:
+        print(p)
+    return 0
+
+
 def write_csv(path, rows):
     """Rows (dicts with the same keys) as CSV, floats with 6 significant digits: the
     benchmark and study tables in ``postprocess/results``."""

@@ -161,14 +161,9 @@ def main(argv=None) -> int:
     parser.add_argument("--log", type=float, default=None, metavar="DECADES",
                         help="logarithmic colours over the top DECADES decades of the values")
     args = parser.parse_args(argv)
-    try:
-        png = render(args.source, field=args.field, time=args.time, png=args.png, size=tuple(args.size),
-                     part=args.part, log_decades=args.log)
-    except (FileNotFoundError, KeyError, ValueError) as err:
-        print(f"snapshot: {err}", file=sys.stderr)
-        return 2
-    print(png)
-    return 0
+    from .rundata import tool_main  # (rundata reads frames through this module)
+    return tool_main("snapshot", lambda: render(args.source, field=args.field, time=args.time, png=args.png,
+                                                size=tuple(args.size), part=args.part, log_decades=args.log))
 
 
 if __name__ == "__main__":

@@ -34,7 +34,7 @@ from hydrofrac.interface import Crack, DamageParams, Interface, crack_facet_indi
 from hydrofrac.meshes.fractures import NATURAL, OUTER, PATH, Domain, Fracture, fracture_mesh
 from hydrofrac.network import CrackLine, CrackNetwork
 from hydrofrac.problem import Problem
-from hydrofrac.run import Monitor, RunOptions, log
+from hydrofrac.run import Monitor, RunOptions
 from hydrofrac.run import run as run_problem
 from hydrofrac.solver import Solver
 
@@ -92,15 +92,14 @@ class KinkMonitor(Monitor):
                 out[f"tip{i}_grown_m"] = float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
         return out
 
+    def report(self, acc):
+        return (f"[crack_growth] {acc['extensions']} extensions in {acc['remeshes']} remeshes; first kink "
+                f"{acc.get('tip0_first_kink_deg', float('nan')):.1f}° / {acc.get('tip1_first_kink_deg', float('nan')):.1f}°")
+
 
 def run(problem, options: RunOptions):
     """Run with the kink measurements."""
-    summary = run_problem(problem, options, name="crack_growth", monitors=[KinkMonitor()])
-    acc = summary["accuracy"]
-    log(problem.comm, f"[crack_growth] {acc['extensions']} extensions in {acc['remeshes']} remeshes; first kink "
-                      f"{acc.get('tip0_first_kink_deg', float('nan')):.1f}° / "
-                      f"{acc.get('tip1_first_kink_deg', float('nan')):.1f}°")
-    return summary
+    return run_problem(problem, options, name="crack_growth", monitors=[KinkMonitor()])
 
 
 def main(argv=None):

@@ -41,7 +41,7 @@ from hydrofrac import CONFINEMENT, cli, wellbore
 from hydrofrac.boundary import PiecewiseLinear
 from hydrofrac.interface import DamageParams
 from hydrofrac.meshes.fractures import Domain, Fracture, Perforation
-from hydrofrac.run import Monitor, RunOptions, log
+from hydrofrac.run import Monitor, RunOptions
 from hydrofrac.run import run as run_problem
 
 P_PEAK = 19.4e6
@@ -96,8 +96,8 @@ def setup(comm=MPI.COMM_WORLD, record=None, **params):
 class IntersectionMonitor(Monitor):
     checkpointed = ("t_intersection", "rows", "nf_length")
 
-    def __init__(self, nf_tags):
-        self.nf_tags = list(nf_tags)
+    def __init__(self, nf_tags, name="intersection"):
+        self.nf_tags, self.name = list(nf_tags), name
         self.nf_length = None
         self.t_intersection = None
         self.far = 0.25  # m from the junction for the velocity-spike measure
@@ -145,6 +145,10 @@ class IntersectionMonitor(Monitor):
                                            else float("nan"))
         return out
 
+    def report(self, acc):
+        return (f"[{self.name}] intersection at t = {acc['intersection_time'] * 1e6:.1f} µs; loaded length of the "
+                f"natural fracture at the end {acc['nf_loaded_length_final']:.3f} m of {acc['nf_length']:.3f} m")
+
 
 # ## Free growth (the default; ``--premeshed`` for the potential paths)
 # Instead of pre-meshed paths, every perforation tip grows where the stress sends it
@@ -173,13 +177,8 @@ class IntersectionMonitor(Monitor):
 def run(problem, options: RunOptions, name="intersection_regularized"):
     """Run ``problem`` with the intersection monitor; returns the summary (fields:
     ``problem.solver.x``)."""
-    mon = IntersectionMonitor([c.tag for c in problem.network.cracks if c.kind == "natural"])
-    summary = run_problem(problem, options, name=name, monitors=[mon])
-    acc = summary["accuracy"]
-    log(problem.comm, f"[{name}] intersection at t = {acc['intersection_time'] * 1e6:.1f} µs; loaded length of "
-                      f"the natural fracture at the end {acc['nf_loaded_length_final']:.3f} m of "
-                      f"{acc['nf_length']:.3f} m")
-    return summary
+    mon = IntersectionMonitor([c.tag for c in problem.network.cracks if c.kind == "natural"], name)
+    return run_problem(problem, options, name=name, monitors=[mon])
 
 
 def main(argv=None, regularized=None):

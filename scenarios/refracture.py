@@ -30,7 +30,7 @@ from hydrofrac.boundary import PiecewiseLinear
 from hydrofrac.hydraulics import network_distance
 from hydrofrac.interface import MODE_SEPARATED, DamageParams
 from hydrofrac.meshes.fractures import Domain, Perforation
-from hydrofrac.run import Monitor, RunOptions, log
+from hydrofrac.run import Monitor, RunOptions
 from hydrofrac.run import run as run_problem
 
 P_PEAK = 19.4e6
@@ -176,16 +176,16 @@ class RefractureMonitor(Monitor):
             "min_opening": -iface.max_penetration(), "opening_floor": floor,
         }
 
+    def report(self, acc):
+        return (f"[refracture] separated fraction just before re-loading {acc['separated_fraction_before_reload']:.3f}; "
+                f"re-loading order vs distance from the perforations: Spearman {acc['reload_order_spearman']:.3f} "
+                f"over {acc['reloaded_facets']} facets")
+
 
 def run(problem, options: RunOptions, t_off, t_on):
     """Run ``problem`` with the re-fracture monitor (``t_off``, ``t_on``: the end of the
     removal and the re-loading)."""
-    summary = run_problem(problem, options, name="refracture", monitors=[RefractureMonitor(t_off, t_on)])
-    acc = summary["accuracy"]
-    log(problem.comm, f"[refracture] separated fraction just before re-loading "
-                      f"{acc['separated_fraction_before_reload']:.3f}; re-loading order vs distance from the "
-                      f"perforations: Spearman {acc['reload_order_spearman']:.3f} over {acc['reloaded_facets']} facets")
-    return summary
+    return run_problem(problem, options, name="refracture", monitors=[RefractureMonitor(t_off, t_on)])
 
 
 def main(argv=None):

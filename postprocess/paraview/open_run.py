@@ -38,6 +38,19 @@ CLIM_QUANTILE = 0.995
 HEIGHT_SHARE = 0.15
 
 
+
+def style_bar(bar, title, fmt, position, length):
+    """A vertical colour legend in black at ``position`` (view fractions)."""
+    bar.Title = title
+    bar.ComponentTitle = ""
+    bar.RangeLabelFormat = fmt
+    bar.TitleColor = bar.LabelColor = [0.0, 0.0, 0.0]
+    bar.WindowLocation = "Any Location"
+    bar.Orientation = "Vertical"
+    bar.Position = position
+    bar.ScalarBarLength = length
+
+
 def parse(argv):
     p = argparse.ArgumentParser(description="Open a hydrofrac run folder in ParaView and save a screenshot/state.")
     p.add_argument("run", nargs="?", default=os.environ.get("HYDROFRAC_RUN"),
@@ -149,15 +162,7 @@ def main(argv=None):
     w_lut.RescaleTransferFunction(w_max * 1e-3, w_max)
     w_lut.UseLogScale = 1
     w_lut.AutomaticRescaleRangeMode = "Never"
-    bar = GetScalarBar(w_lut, view)
-    bar.Title = "strain energy density [J/m³]"
-    bar.ComponentTitle = ""
-    bar.RangeLabelFormat = "%-#6.3g"
-    bar.TitleColor = bar.LabelColor = [0.0, 0.0, 0.0]
-    bar.WindowLocation = "Any Location"
-    bar.Orientation = "Vertical"
-    bar.Position = [0.82, 0.1]
-    bar.ScalarBarLength = 0.4
+    style_bar(GetScalarBar(w_lut, view), "strain energy density [J/m³]", "%-#6.3g", [0.82, 0.1], 0.4)
     bulk_display.SetScalarBarVisibility(view, True)
 
     # -- cracks: all facets thin grey, debonded ones thick and coloured
@@ -206,16 +211,9 @@ def main(argv=None):
             c_lut.ApplyPreset("Cool to Warm", True)
             c_lut.AutomaticRescaleRangeMode = "Never"
             c_lut.RescaleTransferFunction(0.0, 3.0 if crack_field == "mode" else 1.0)
-            c_bar = GetScalarBar(c_lut, view)
-            c_bar.Title = {"f_p": "pressure factor f_p", "D": "damage D",
-                           "mode": "mode (0 bonded, 1 stick, 2 slip, 3 separated)"}[crack_field]
-            c_bar.ComponentTitle = ""
-            c_bar.RangeLabelFormat = "%-#.2g"
-            c_bar.TitleColor = c_bar.LabelColor = [0.0, 0.0, 0.0]
-            c_bar.WindowLocation = "Any Location"
-            c_bar.Orientation = "Vertical"
-            c_bar.Position = [0.82, 0.55]
-            c_bar.ScalarBarLength = 0.35
+            style_bar(GetScalarBar(c_lut, view), {"f_p": "pressure factor f_p", "D": "damage D",
+                                                  "mode": "mode (0 bonded, 1 stick, 2 slip, 3 separated)"}[crack_field],
+                      "%-#.2g", [0.82, 0.55], 0.35)
             crack_display.SetScalarBarVisibility(view, True)
 
     label = Text(registrationName="time label")
