@@ -77,12 +77,16 @@ class ContactParams:
         always in the separation mode (eta = 0) with the normal traction
         S^1 += -kappa <-delta> (contact by interpenetration, frictionless), as a penalty
         method would impose; penetration ~ p/kappa and an explicit step limit ~ Z~/kappa.
+    clip : hold the opening at the permitted penetration delta'_0 delta~ after every stage (a
+        safety net: every activation is counted and reported in the summary); False lets the
+        dynamics alone keep it (the tests and studies of the regularisation)
     """
 
     delta0: float = -0.01
     w0: float = 0.01
     regularized: bool = True
     penalty: Optional[float] = None
+    clip: bool = True
 
     def __post_init__(self):
         if self.penalty is not None and not self.penalty > 0:
@@ -254,6 +258,8 @@ class Interface:
         self.state[1] = delta0[:, None]
         self.stage_state = self.state.copy()
         self.min_opening = np.full((nf, self.nq), np.inf)
+        self.clip_count = 0  # points x stages where the opening clip acted (constrain)
+        self.clip_depth = 0.0  # the deepest overshoot it caught, in units of the permitted penetration
 
         # M^{-1} blocks of the owned cells next to any crack facet: those next to a facet
         # owned by another rank receive its residual through the reverse scatter
@@ -287,6 +293,7 @@ class Interface:
         self._laws = kernels.Laws(bool(c.regularized), float(c.delta0), float(c.w0),
                                   0.0 if c.penalty is None else float(c.penalty), float(d.beta), float(d.s_onset),
                                   float(d.s_bar), float(d.a))
+        self._warn_unresolved_band()
         self._compile_stage()
         solver.timers.add("setup", time.perf_counter() - t0)
         self.evaluate(solver.x, 0.0, store=True)
@@ -307,6 +314,23 @@ class Interface:
         if self._ghost_flux or self.solver.matfree is None:
             kernels.apply_block_inverse(np.zeros(5), np.zeros(5), self._recv_cells[:0], self._all_dofs,
                                         self.solver.Mref_inv, self.solver.Binv_scaled)
+
+    def _warn_unresolved_band(self):
+        """Warn (rank 0) when the regularised contact band |delta'_0| delta~ is crossed within
+        fewer than 3 time steps at the fracture velocity scale v~ (the band spans
+        |delta'_0| tau~ / dt steps there): eta then jumps within a step and the opening clip,
+        not the regularisation, holds the penetration (docs/model.md §4)."""
+        c = self.contact
+        if not (c.regularized and c.penalty is None) or not self.tau.size:
+            return
+        steps = self.solver.comm.allreduce(abs(c.delta0) * float(self.tau.min()) / self.solver.dt, op=MPI.MIN)
+        if steps < 3 and self.solver.comm.rank == 0:
+            import warnings
+            warnings.warn(f"the contact band |delta'_0| delta~ spans {steps:.2g} time steps at the fracture velocity "
+                          f"scale (|delta'_0| tau~ / dt with delta'_0 = {c.delta0}, tau~ = {self.tau.min():.3g} s, "
+                          f"dt = {self.solver.dt:.3g} s); below 3 steps eta jumps within a step and the opening clip "
+                          f"holds the penetration (counted in the summary). |delta'_0| >= "
+                          f"{3 * self.solver.dt / self.tau.min():.2g} resolves it", stacklevel=3)
 
     def set_separation_law(self, law: Optional[Callable]):
         """The target traction of the separation mode (see the class docstring); None:
@@ -424,8 +448,14 @@ class Interface:
         maximum penetration delta'_0 delta~ (where eta = 1 and d(delta)/dt = 0)."""
         z = z.copy()
         z[0] = np.clip(z[0], self.state[0], 1.0)
-        if self.contact.regularized and self.contact.penalty is None:
-            z[1] = np.maximum(z[1], self.contact.delta0 * self.delta_scale[:, None])
+        if self.contact.regularized and self.contact.penalty is None and self.contact.clip:
+            floor = self.contact.delta0 * self.delta_scale[:, None]
+            below = z[1] < floor
+            if below.any():  # the dynamics overshot the permitted penetration: count it
+                self.clip_count += int(below.sum())
+                depth = (floor - z[1])[below] / np.abs(np.broadcast_to(floor, z[1].shape)[below])
+                self.clip_depth = max(self.clip_depth, float(depth.max()))
+                z[1] = np.maximum(z[1], floor)
         return z
 
     def end_step(self, x, t, dt):
@@ -507,12 +537,27 @@ class Interface:
 
     # ------------------------------------------------------------------ checkpoint
     def checkpoint_state(self):
-        return {"state": self.state.copy(), "min_opening": self.min_opening.copy()}
+        return {"state": self.state.copy(), "min_opening": self.min_opening.copy(),
+                "clips": np.array([self.clip_count, self.clip_depth])}
 
     def restore_state(self, st):
         self.state = np.array(st["state"])
         self.stage_state = self.state.copy()
         self.min_opening = np.array(st["min_opening"])
+        if "clips" in st:
+            self.clip_count, self.clip_depth = int(st["clips"][0]), float(st["clips"][1])
+
+    def contact_report(self):
+        """What the summary reports of the contact model (collective): the largest
+        penetration and the permitted one [m], and the opening clip's activations (points x
+        stages) and its deepest catch relative to the permitted penetration."""
+        comm = self.solver.comm
+        permitted = abs(self.contact.delta0) * comm.allreduce(
+            float(self.delta_scale.max()) if self.delta_scale.size else 0.0, op=MPI.MAX)
+        return {"max_penetration": self.max_penetration(), "permitted_penetration_max": permitted,
+                "clip_activations": comm.allreduce(self.clip_count, op=MPI.SUM),
+                "clip_depth_max": comm.allreduce(self.clip_depth, op=MPI.MAX),
+                "regularized": bool(self.contact.regularized), "clip": bool(self.contact.clip)}
 
     # ------------------------------------------------------------------ diagnostics
     def max_penetration(self):

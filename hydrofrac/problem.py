@@ -101,6 +101,8 @@ class Problem:
 
     def summary(self) -> Dict:
         out = self.solver.summary()
+        if self.interface is not None:
+            out["contact"] = self.interface.contact_report()
         if self.network is not None:
             out["network"] = self.network.counts()
         return out

@@ -82,6 +82,11 @@ def print_summary(s: Dict, file=sys.stdout):
             line += (f", interface kernel {c['interface_per_facet_stage']:.3g} us per crack facet*stage "
                      f"({c['crack_facets']} crack facets)")
         lines.append(line)
+    if "contact" in s:
+        c = s["contact"]
+        lines.append(f"  contact     max penetration {c['max_penetration']:.3g} m (permitted {c['permitted_penetration_max']:.3g} m),"
+                     f" opening clip acted {c['clip_activations']} times (deepest {c['clip_depth_max']:.3g}x the "
+                     "permitted penetration)")
     if "remeshing" in s:
         r = s["remeshing"]
         lines.append(f"  remeshing   {r['remeshes']} remeshes, {r['wall_s']:.2f} s ({100 * r['share']:.0f}% of the wall time)")

@@ -157,6 +157,7 @@ def transfer_interface(old, new, tol=1e-9):
     new.state = state
     new.stage_state = state.copy()
     new.min_opening = min_open
+    new.clip_count, new.clip_depth = old.clip_count, old.clip_depth  # (summed over ranks when reported)
     new.solver.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
     new.evaluate(new.solver.x, new.solver.t, store=True)
     return comm.allreduce(found, op=MPI.SUM)
