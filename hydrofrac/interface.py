@@ -321,16 +321,18 @@ class Interface:
         |delta'_0| tau~ / dt steps there): eta then jumps within a step and the opening clip,
         not the regularisation, holds the penetration (docs/model.md §4)."""
         c = self.contact
-        if not (c.regularized and c.penalty is None) or not self.tau.size:
+        if not (c.regularized and c.penalty is None):
             return
-        steps = self.solver.comm.allreduce(abs(c.delta0) * float(self.tau.min()) / self.solver.dt, op=MPI.MIN)
+        # collective: a rank that owns no crack facet takes part with +inf
+        tau = self.solver.comm.allreduce(float(self.tau.min()) if self.tau.size else np.inf, op=MPI.MIN)
+        steps = abs(c.delta0) * tau / self.solver.dt
         if steps < 3 and self.solver.comm.rank == 0:
             import warnings
             warnings.warn(f"the contact band |delta'_0| delta~ spans {steps:.2g} time steps at the fracture velocity "
-                          f"scale (|delta'_0| tau~ / dt with delta'_0 = {c.delta0}, tau~ = {self.tau.min():.3g} s, "
+                          f"scale (|delta'_0| tau~ / dt with delta'_0 = {c.delta0}, tau~ = {tau:.3g} s, "
                           f"dt = {self.solver.dt:.3g} s); below 3 steps eta jumps within a step and the opening clip "
                           f"holds the penetration (counted in the summary). |delta'_0| >= "
-                          f"{3 * self.solver.dt / self.tau.min():.2g} resolves it", stacklevel=3)
+                          f"{3 * self.solver.dt / tau:.2g} resolves it", stacklevel=3)
 
     def set_separation_law(self, law: Optional[Callable]):
         """The target traction of the separation mode (see the class docstring); None:
