@@ -426,3 +426,40 @@ def test_separation_jump_and_mode_fractions():
     np.testing.assert_allclose(f[:, 0] + f[:, 1], aB, rtol=1e-14)
     np.testing.assert_allclose(f[:, 2], aSL, rtol=1e-14)
     np.testing.assert_allclose(f[:, 3], aS, rtol=1e-14)
+
+
+def test_solver_damage_history_follows_the_damage_ode():
+    """Verification case 10 through the solver: a bonded interface (D = 0) in a strip held at a
+    tension 50 s_bar normal to it (the initial stress, kept by absorbing ends) has D_t = 1 from
+    the start; the solver's own D(t) at its Gauss points follows dD/dt = (1 - exp(-a (1 - D)))/tau~
+    (a fine scipy integration) to 1e-6 as long as the bonded traction stays above s_bar, here
+    until D = 0.95."""
+    from hydrofrac.problem import Problem
+    comm = MPI.COMM_WORLD
+    L, nx = 0.05, 20
+    mesh, tags = strip(comm, L, nx)
+    dmg = DamageParams(tau=20e-6)
+    sigma0 = np.array([[50 * dmg.s_bar, 0.0], [0.0, 0.0]])
+    cracks = [Crack(CRACK, friction=0.6, damage=0.0)]
+    solver = Solver(mesh, 2, ROCK, facet_tags=tags, sigma0=sigma0,
+                    bcs=[Symmetry(SIDES), Absorbing(LEFT, stress=sigma0), Absorbing(RIGHT, stress=sigma0)],
+                    crack_facets=crack_facet_indices(mesh, tags, cracks))
+    problem = Problem(solver, Interface(solver, tags, cracks, damage=dmg))
+    iface = problem.interface
+    t, D, s_eff = [0.0], [0.0], []
+    while D[-1] < 0.95:
+        solver.step()
+        problem.after_step()
+        d = comm.allreduce(float(iface.state[0].mean()) if iface.facets.size else 0.0, op=MPI.MAX)
+        spread = comm.allreduce(float(np.ptp(iface.state[0])) if iface.facets.size else 0.0, op=MPI.MAX)
+        assert spread < 1e-12  # every point of the (one-dimensional) interface has the same history
+        low = comm.allreduce(float(rm.effective_stress(iface.last["s_B"], dmg.beta).min())
+                             if iface.facets.size else np.inf, op=MPI.MIN)
+        t.append(solver.t)
+        D.append(d)
+        s_eff.append(low)
+    assert min(s_eff) > dmg.s_bar  # the premise: D_t = 1 throughout
+    ref = solve_ivp(lambda _t, y: (1.0 - np.exp(-dmg.a * (1.0 - y))) / dmg.tau, (0, t[-1]), [0.0],
+                    method="DOP853", t_eval=t, rtol=1e-13, atol=1e-16, max_step=dmg.tau / 50)
+    err = np.abs(np.array(D) - ref.y[0]).max()
+    assert err < 1e-6, f"the solver's damage history differs from the ODE by {err:.3g}"
