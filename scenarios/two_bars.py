@@ -50,16 +50,24 @@ def make_mesh(comm, L, nx):
 # ## Model
 # The bars start at rest-stress with velocity +v₀ (left) and −v₀ (right).  The
 # crack starts closed with zero opening (δ = 0): touching, not pressed.
-def setup(comm=MPI.COMM_WORLD, degree=3, nx=80, L=1.0, v0=1.0, delta0=-0.01, material=ROCK) -> Problem:
+#
+# A variant (`gap_steps`) starts the bars apart, by the distance they close in that many CFL
+# steps: with a half-integer the gap shuts in the middle of a step (the contact studies and
+# tests); `contact` sets the contact map (exact or regularised, δ'₀, the opening clip).
+def setup(comm=MPI.COMM_WORLD, degree=3, nx=80, L=1.0, v0=1.0, delta0=-0.01, material=ROCK, gap_steps=0.0,
+          contact=None, cfl=None) -> Problem:
     mesh, tags = make_mesh(comm, L, nx)
-    cracks = [Crack(CRACK, friction=0.0, damage=1.0, opening=0.0)]
-    solver = Solver(mesh, degree, material, facet_tags=tags, bcs=[Symmetry(SIDES)],
+    gap = 0.0
+    if gap_steps:
+        gap = gap_steps * 2 * v0 * Solver(mesh, degree, material, facet_tags=tags, bcs=[Symmetry(SIDES)]).dt
+    cracks = [Crack(CRACK, friction=0.0, damage=1.0, opening=gap)]
+    solver = Solver(mesh, degree, material, facet_tags=tags, bcs=[Symmetry(SIDES)], cfl=cfl,
                     crack_facets=crack_facet_indices(mesh, tags, cracks))
     solver.set_initial_state(lambda x: np.vstack([np.where(x[0] < 0, v0, -v0)] + [0 * x[0]] * 4), by_cell=True)
     h = 2 * L / nx
     network = CrackNetwork.from_cracks([CrackLine(CRACK, "natural", [(0.0, 0.0), (0.0, h)])])
-    return Problem(solver, Interface(solver, tags, cracks, contact=ContactParams(delta0=delta0)), network=network,
-                   facet_tags=tags)
+    contact = ContactParams(delta0=delta0) if contact is None else contact
+    return Problem(solver, Interface(solver, tags, cracks, contact=contact), network=network, facet_tags=tags)
 
 
 # ## Measurements against the exact answer

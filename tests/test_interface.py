@@ -19,7 +19,6 @@ from mpi4py import MPI
 from hydrofrac import CONFINEMENT, ROCK
 from hydrofrac.boundary import Absorbing, PiecewiseLinear, Slider, Symmetry, Traction, Velocity
 from hydrofrac.interface import ContactParams, Crack, DamageParams, Interface, crack_facet_indices
-from hydrofrac.problem import Problem
 from hydrofrac.solver import Solver
 
 from helpers import (CRACK, LEFT, RIGHT, SIDES, check_shear_fracture, check_two_bars, kinked_crack_mesh,
@@ -227,15 +226,8 @@ def closing_bars(delta0, gap_steps=10.5, nx=20, degree=2, v0=1.0):
     """Two bars of the two_bars scenario (L = 1 m), here with an initial gap that closes in the
     middle of a time step (after ``gap_steps`` steps at the closing speed 2 v0)."""
     tb = load_scenario("two_bars")
-    comm = MPI.COMM_WORLD
-    mesh, tags = tb.make_mesh(comm, 1.0, nx)
-    dt = Solver(mesh, degree, ROCK, facet_tags=tags, bcs=[Symmetry(tb.SIDES)]).dt
-    cracks = [Crack(tb.CRACK, friction=0.0, damage=1.0, opening=gap_steps * 2 * v0 * dt)]
-    solver = Solver(mesh, degree, ROCK, facet_tags=tags, bcs=[Symmetry(tb.SIDES)],
-                    crack_facets=crack_facet_indices(mesh, tags, cracks))
-    solver.set_initial_state(lambda x: np.vstack([np.where(x[0] < 0, v0, -v0)] + [0 * x[0]] * 4), by_cell=True)
-    iface = Interface(solver, tags, cracks, contact=ContactParams(delta0=delta0))
-    return Problem(solver, iface), tb.Recorder()
+    problem = tb.setup(degree=degree, nx=nx, v0=v0, gap_steps=gap_steps, contact=ContactParams(delta0=delta0))
+    return problem, tb.Recorder()
 
 
 def test_contact_stable_for_any_max_penetration():
