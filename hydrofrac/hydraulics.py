@@ -4,8 +4,8 @@ and the separation traction S of loaded cracks (model.md §5, eqs. 14-16).
 * A crack facet joins the *network* when it is debonded: its mean damage
   reaches ``threshold`` (default 0.99 [our choice]; D -> 1 only asymptotically
   under the rate law).  Source facets (perforations) always belong to it.
-* Network facets that share a vertex are connected (union-find over the
-  facets of all ranks); a component is *loaded* if it contains a source facet.
+* Network facets that share a vertex are connected (connected components of the
+  facet-vertex graph of all ranks); a component is *loaded* if it contains a source facet.
 * Pressure factor at a crack vertex P: ``f_p(P) = clip(delta_P,max / (delta_bar' delta~), 0, 1)``
   with ``delta_P,max`` the largest opening at P of the loaded facets meeting at P
   (the opening at a facet end is its nearest Gauss point's); interpolated
@@ -31,56 +31,29 @@ from . import riemann as rm
 from .boundary import PiecewiseLinear
 
 
-class UnionFind:
-    """Disjoint sets over 0..n-1 with path halving and union by size."""
-
-    def __init__(self, n: int):
-        self.parent = np.arange(n)
-        self.size = np.ones(n, dtype=np.int64)
-
-    def find(self, i: int) -> int:
-        p = self.parent
-        while p[i] != i:
-            p[i] = p[p[i]]
-            i = p[i]
-        return i
-
-    def union(self, i: int, j: int) -> int:
-        ri, rj = self.find(i), self.find(j)
-        if ri == rj:
-            return ri
-        if self.size[ri] < self.size[rj]:
-            ri, rj = rj, ri
-        self.parent[rj] = ri
-        self.size[ri] += self.size[rj]
-        return ri
-
-    def roots(self) -> np.ndarray:
-        return np.array([self.find(i) for i in range(self.parent.size)], dtype=np.int64)
-
-
 def components(edges_vertices: np.ndarray, active: np.ndarray) -> np.ndarray:
-    """Component root per facet of a crack network.
+    """Component label per facet of a crack network.
 
     edges_vertices : (m, 2) vertex ids of each facet (any integer ids)
-    active : (m,) bool, facets in the network; inactive facets get root -1
+    active : (m,) bool, facets in the network; inactive facets get -1
 
-    Active facets sharing a vertex are joined.
+    Active facets sharing a vertex are joined: the connected components of the facet-vertex
+    graph (``scipy.sparse.csgraph.connected_components``, compiled).
     """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
     m = edges_vertices.shape[0]
-    uf = UnionFind(m)
+    labels = np.full(m, -1, dtype=np.int64)
     idx = np.flatnonzero(active)
-    if idx.size:
-        verts = edges_vertices[idx].reshape(-1)
-        owners = np.repeat(idx, 2)
-        order = np.argsort(verts, kind="stable")
-        v_sorted, o_sorted = verts[order], owners[order]
-        same = v_sorted[1:] == v_sorted[:-1]
-        for a, b in zip(o_sorted[:-1][same], o_sorted[1:][same]):
-            uf.union(int(a), int(b))
-    roots = uf.roots()
-    roots[~active] = -1
-    return roots
+    if not idx.size:
+        return labels
+    uniq, inv = np.unique(np.asarray(edges_vertices)[idx].reshape(-1), return_inverse=True)
+    n = idx.size + uniq.size  # nodes: the active facets, then their vertices
+    rows = np.repeat(np.arange(idx.size), 2)
+    G = coo_matrix((np.ones(rows.size), (rows, idx.size + inv)), shape=(n, n))
+    _, lab = connected_components(G, directed=False)
+    labels[idx] = lab[:idx.size]
+    return labels
 
 
 def loaded_facets(edges_vertices, active, source) -> np.ndarray:

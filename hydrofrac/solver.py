@@ -285,8 +285,8 @@ class Solver:
             term = ef.boundary_flux(U, W, rho, lam, mu, n, ("traction", "traction"), (0.0, 0.0), ds(free_tag))
             a_bdry = term if a_bdry is None else a_bdry + term
 
+        self._M = None
         self.Minv = self._inverse_mass()
-        self.M = _to_baij(self._mass_matrix(), ef.NCOMP)
         self.A = self.B = self.matfree = None
         if self.operator == "assembled":
             K = compat.assemble_matrix(compat.form(a_bulk if a_bdry is None else a_bulk + a_bdry))
@@ -370,8 +370,13 @@ class Solver:
         blocks = np.einsum("ij,cab->ciajb", Mref_inv, self.Binv_scaled[:nloc]).reshape(-1, nd, nd)
         return self._block_diag_matrix(blocks)
 
-    def _mass_matrix(self):
-        return self._block_diag_matrix(self._mass_blocks)
+    @property
+    def M(self):
+        """The mass matrix (BAIJ), built on first use: the matrix-free operator and its energy
+        kernel do not need it, and it was 40 % of a remesh's set-up at the --quick sizes."""
+        if self._M is None:
+            self._M = _to_baij(self._block_diag_matrix(self._mass_blocks), ef.NCOMP)
+        return self._M
 
     def _block_diag_matrix(self, blocks):
         """PETSc AIJ matrix with the per-owned-cell dense blocks on the diagonal."""

@@ -1,4 +1,4 @@
-"""Hydraulic load: connectivity (union-find), loaded state, pressure factor, Sneddon,
+"""Hydraulic load: connectivity (connected components), loaded state, pressure factor, Sneddon,
 the intersection problems and bad input (issue 4; verification.md cases 11-12)."""
 import json
 import subprocess
@@ -15,7 +15,7 @@ from hydrofrac.hydraulics import HydraulicParams, components, loaded_facets, pre
 ROOT = Path(__file__).resolve().parents[1]
 
 
-# --------------------------------------------------------------------------- union-find
+# --------------------------------------------------------------------------- connectivity
 def _network(edges):
     return np.array(edges, dtype=np.int64)
 
