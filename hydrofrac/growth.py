@@ -416,5 +416,8 @@ class GrowthDriver:
                 "events": [{"t": t, "tip": i, "angle_deg": a, "s_max": s_} for t, i, a, s_ in self.events],
                 "joined": [{"t": t, "tip": i, "point": np.asarray(p).tolist()} for t, i, p in self.joined],
                 "remeshes": self.count}
+        network = getattr(self.problem, "network", None)
+        if network is not None:  # the current geometry: cracks, junctions and tips
+            data["network"] = network.as_dict()
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         Path(path).write_text(json.dumps(data, indent=1, default=float))

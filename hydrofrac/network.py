@@ -75,7 +75,9 @@ class CrackNetwork:
                     continue
                 other = net._crack_at(p, c, end, tol)
                 if other is not None:
-                    net.junctions.append((p.copy(), (c.tag, other)))
+                    seen = any(np.linalg.norm(q - p) < tol and set(tags) == {c.tag, other} for q, tags in net.junctions)
+                    if not seen:  # two crack ends that meet are one junction
+                        net.junctions.append((p.copy(), (c.tag, other)))
                     continue
                 q = c.points[1] if end == 0 else c.points[-2]
                 d = (p - q) / max(np.linalg.norm(p - q), 1e-300)

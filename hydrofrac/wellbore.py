@@ -18,8 +18,8 @@ from .boundary import Absorbing, PiecewiseLinear, Traction
 from .hydraulics import HydraulicParams
 from .interface import ContactParams, Crack, DamageParams, Interface, crack_facet_indices
 from .material import CONFINEMENT, ROCK, Material
-from .meshes.fractures import (OUTER, PATH, WELLBORE, Domain, Fracture, Perforation, check_geometry,
-                               fracture_mesh, fracture_points, perforation_points)
+from .meshes.fractures import (NATURAL, OUTER, PATH, PERFORATION, WELLBORE, Domain, Fracture, Perforation,
+                               check_geometry, fracture_mesh, fracture_points)
 from .network import CrackLine, CrackNetwork
 from .problem import Problem
 from .solver import Solver
@@ -96,10 +96,25 @@ class Wellbore:
         check_geometry(self.domain, self.perforations, self.fractures, self.paths)
 
 
+def network_of(desc: Wellbore, paths=None, path_tags=None) -> CrackNetwork:
+    """The crack network of ``desc`` (with ``paths``/``path_tags`` in place of its paths): the
+    perforations, natural fractures and paths as polylines with their tags; the perforations'
+    outer ends and the paths' last ends are the active tips of a growing problem."""
+    paths = desc.paths if paths is None else paths
+    lines = check_geometry(desc.domain, desc.perforations, desc.fractures, paths, path_tags)
+    kind = {PERFORATION: "perforation", NATURAL: "natural", PATH: "path"}
+    cracks = [CrackLine(t, kind[PATH if t >= PATH else NATURAL if t >= NATURAL else PERFORATION], pts)
+              for t, pts in lines.items()]
+    growing = [c.tag for c in cracks if c.kind in ("path", "perforation")] if desc.growth is not None else ()
+    return CrackNetwork.from_cracks(cracks, desc.domain.wellbore_radius, growing=growing)
+
+
 def build(desc: Wellbore, comm=MPI.COMM_WORLD, paths=None, path_tags=None, out=None) -> Problem:
     """Mesh, solver, interface, hydraulics and network of ``desc`` (with ``paths``/``path_tags``
-    in place of the description's paths: the grown ones)."""
+    in place of the description's paths: the grown ones).  The network is made first; the
+    hydraulic sources are its perforations."""
     paths = desc.paths if paths is None else paths
+    network = network_of(desc, paths, path_tags)
     fm = fracture_mesh(comm, desc.domain, perforations=desc.perforations, fractures=desc.fractures, paths=paths,
                        out=out, path_tags=path_tags)
     sigma0 = -desc.p0 * np.eye(2)
@@ -110,14 +125,8 @@ def build(desc: Wellbore, comm=MPI.COMM_WORLD, paths=None, path_tags=None, out=N
                     bcs=[Traction(WELLBORE, pressure=desc.pressure), Absorbing(OUTER, stress=sigma0)],
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks))
     iface = Interface(solver, fm.facet_tags, cracks, damage=desc.damage, contact=desc.contact)
-    hyd = HydraulicParams(pressure=desc.pressure, sources=fm.perforations, delta_bar=desc.delta_bar,
-                          regularized=desc.regularized)
-    lines = ([CrackLine(t, "perforation", perforation_points(desc.domain, p))
-              for t, p in zip(fm.perforations, desc.perforations)]
-             + [CrackLine(t, "natural", fracture_points(f)) for t, f in zip(fm.naturals, desc.fractures)]
-             + [CrackLine(t, "path", fm.lines[t]) for t in fm.paths])
-    network = CrackNetwork.from_cracks(lines, desc.domain.wellbore_radius,
-                                       growing=fm.paths if desc.growth is not None else ())
+    hyd = HydraulicParams(pressure=desc.pressure, delta_bar=desc.delta_bar, regularized=desc.regularized,
+                          sources=[c.tag for c in network.cracks if c.kind == "perforation"])
     return Problem(solver, iface, hyd, network=network, facet_tags=fm.facet_tags)
 
 
@@ -139,10 +148,10 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
     the natural fractures or another crack they reach."""
     from .growth import GrowthDriver, GrowthParams, Tip
     g, dom, perfs = desc.growth, desc.domain, desc.perforations
-    tips = []
-    for pf in perfs:
-        d = np.array([np.cos(np.radians(pf.angle)), np.sin(np.radians(pf.angle))])
-        tips.append(Tip((dom.wellbore_radius + pf.length) * d, d))
+    # the growing tips are the network's: the outer ends of the perforations
+    start = network_of(replace(desc, paths=()))
+    tips = [Tip(t.point.copy(), t.direction.copy()) for t in start.tips
+            if t.active and t.tag in {c.tag for c in start.cracks if c.kind == "perforation"}]
     h = dom.h_crack
     mx, my = dom.half_width - 2 * h, dom.half_height - 2 * h
     rmax = np.inf if g.max_radius is None else g.max_radius

@@ -150,3 +150,20 @@ def test_crack_that_joins_itself_is_meshed():
     with pytest.raises(ValueError, match="crosses itself"):  # 1 µm past it is a crossing
         fracture_mesh(MPI.COMM_WORLD, dom, paths=[np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 0.6], [0.5, 0.6],
                                                             [0.5, -1e-6]])])
+
+
+def test_crack_network_tips_and_junctions():
+    """The network of a wellbore problem: perforation ends on the wellbore wall are neither tips
+    nor junctions; a path that continues a perforation makes one junction; a path ending on a
+    natural fracture makes another; the free ends are tips, active only for growing paths."""
+    from hydrofrac.network import CrackLine, CrackNetwork
+    perf = CrackLine(100, "perforation", [(0.1, 0.0), (0.4, 0.0)])
+    path = CrackLine(300, "path", [(0.4, 0.0), (1.2, 0.0)])
+    nf = CrackLine(200, "natural", [(1.2, -0.8), (1.2, 0.8)])
+    free = CrackLine(301, "path", [(0.0, 0.4), (0.0, 0.9)])
+    net = CrackNetwork.from_cracks([perf, path, nf, free], wellbore_radius=0.1, growing=[300, 301])
+    assert sorted(tuple(sorted(t)) for _, t in net.junctions) == [(100, 300), (200, 300)]
+    tips = {(t.tag, t.end): t.active for t in net.tips}
+    assert tips == {(200, 0): False, (200, -1): False, (301, 0): False, (301, -1): True}
+    np.testing.assert_allclose([t.direction for t in net.tips if t.tag == 301 and t.end == -1][0], [0.0, 1.0])
+    assert net.counts() == {"cracks": 4, "junctions": 2, "tips": 4, "active_tips": 1}

@@ -233,3 +233,20 @@ def test_local_time_stepping_gain():
     assert g["work_levels"] == pytest.approx((1 + 1 + 0.5 + 0.25 + 0.5) / 5, rel=1e-12)
     assert g["finest_level_share"] == pytest.approx(0.4) and g["levels_used"] == 3
     assert lts_gain(dt, 1e-6, levels=1)["work_levels"] == pytest.approx(1.0)
+
+
+def test_sequence_sheet_has_no_empty_panel_and_pictures_a_length_scale(tmp_path):
+    """Five pictures on three columns: the short last row is centred, so no panel slot stays
+    empty at its left; the length scale is a round number of at most a quarter of the view."""
+    from hydrofrac.postprocess.figures import nice_length, sequence_sheet
+    pngs = []
+    for i in range(5):
+        p = tmp_path / f"p{i}.png"
+        Image.new("RGB", (60, 40), (200, 30 * i, 0)).save(p)
+        pngs.append(p)
+    sheet = Image.open(sequence_sheet(pngs, tmp_path / "sheet.png", columns=3, width=10_000)).convert("RGB")
+    assert sheet.size == (180, 80)
+    # last row: two pictures centred (30 px of white on each side), none left empty in the middle
+    assert sheet.getpixel((10, 60)) == (255, 255, 255) and sheet.getpixel((170, 60)) == (255, 255, 255)
+    assert sheet.getpixel((45, 60)) != (255, 255, 255) and sheet.getpixel((135, 60)) != (255, 255, 255)
+    assert [nice_length(s) for s in (6.0, 1.0, 0.33, 3.2)] == [1.0, 0.2, 0.05, 0.5]
