@@ -108,7 +108,8 @@ def run_options(args, history_every: int = 1) -> RunOptions:
 def add_growth_arguments(parser):
     """The free-growth options shared by the wellbore scenarios (intersection, re-fracture):
     ``--growth`` (the default) / ``--premeshed`` and the criterion's parameters, in
-    crack-facet sizes h."""
+    crack-facet sizes h.  (One add_argument per option, each with its own help: the repeated
+    shape is argparse's, kept on purpose for the readable help texts.)"""
     g = parser.add_mutually_exclusive_group()
     g.add_argument("--growth", dest="growth", action="store_true", default=True,
                    help="free crack growth from the perforation tips with Gmsh remeshing (default)")

@@ -89,17 +89,20 @@ class Charts:
             ax.legend(fontsize=8, loc="best", framealpha=0.85)
 
     @staticmethod
-    def _missing(ax, text):
+    def _missing(ax, text, title=None):
+        """An empty panel that says why (and keeps its title)."""
         ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, fontsize=9, color="0.3",
                 wrap=True)
         ax.set_xticks([])
         ax.set_yticks([])
+        if title:
+            ax.set_title(title, fontsize=11)
 
     # -- the charts
     def draw_pressure(self, ax):
         if "p_h" not in self.h:
-            self._missing(ax, "no hydraulic pressure in history.csv\n(this scenario has no p_h)")
-            ax.set_title("hydraulic pressure", fontsize=11)
+            self._missing(ax, "no hydraulic pressure in history.csv\n(this scenario has no p_h)",
+                          "hydraulic pressure")
             return
         self._events(ax)
         ax.plot(self._t(self.h["t"]), self.h["p_h"] / 1e6, color="C0", lw=1.8, label="p_h")
@@ -149,8 +152,8 @@ class Charts:
                 ax.plot(ct, c["loaded_length"], "^", ms=3.5, color="C1", mfc="none", label="loaded length ∫f_p ds")
             drew = True
         if not drew:
-            self._missing(ax, "no crack lengths: the run has no cracks part\nand no length columns in history.csv")
-            ax.set_title("crack lengths", fontsize=11)
+            self._missing(ax, "no crack lengths: the run has no cracks part\nand no length columns in history.csv",
+                          "crack lengths")
             return
         ax.set_ylim(bottom=0)
         self._finish(ax, "length [m]", "crack and loaded lengths")
@@ -158,8 +161,7 @@ class Charts:
     def draw_modes(self, ax):
         c = self.cracks
         if not c or "fraction_bonded" not in c:
-            self._missing(ax, "no contact modes: the run has no cracks part")
-            ax.set_title("contact modes", fontsize=11)
+            self._missing(ax, "no contact modes: the run has no cracks part", "contact modes")
             return
         ct = self._t(c["t"])
         ax.stackplot(ct, *[np.clip(c[f"fraction_{m}"], 0, 1) for m in MODES], labels=MODES,
@@ -172,8 +174,7 @@ class Charts:
     def draw_opening(self, ax):
         c = self.cracks
         if not c:
-            self._missing(ax, "no opening: the run has no cracks part")
-            ax.set_title("largest opening", fontsize=11)
+            self._missing(ax, "no opening: the run has no cracks part", "largest opening")
             return
         self._events(ax)
         ax.plot(self._t(c["t"]), c["opening_max"] * 1e3, "o-", ms=3, lw=1.4, color="C0", label="max opening δ")
@@ -183,13 +184,11 @@ class Charts:
     def draw_penetration(self, ax):
         c = self.cracks
         if not c:
-            self._missing(ax, "no penetration: the run has no cracks part")
-            ax.set_title("largest penetration", fontsize=11)
+            self._missing(ax, "no penetration: the run has no cracks part", "largest penetration")
             return
         self._events(ax)
         if "penetration_ratio_max" not in c:
-            self._missing(ax, "the frames carry no penetration_limit (written by older runs)")
-            ax.set_title("largest penetration", fontsize=11)
+            self._missing(ax, "the frames carry no penetration_limit (written by older runs)", "largest penetration")
             return
         ratio = c["penetration_ratio_max"]
         ax.plot(self._t(c["t"]), ratio, "o-", ms=3, lw=1.4, color="C3", label="max penetration / permitted")
