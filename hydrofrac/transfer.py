@@ -13,8 +13,8 @@ state.
   length (exact for state that is piecewise constant per old facet).  Points on no old facet
   (new segments of a growing crack) keep the new interface's initial state.
 
-Growth itself (inserting segments and remeshing with Gmsh as tips advance) is not built yet;
-these functions are the transfer it will use, tested on remeshes of a fixed geometry.
+:class:`hydrofrac.growth.GrowthDriver` calls these after every remesh; the tests also run
+them on remeshes of a fixed geometry.
 """
 from __future__ import annotations
 
