@@ -162,9 +162,9 @@ class EnergyAccount:
         compat.scatter_forward(self.u)
         for tag, (hist, g) in self._hist_const.items():
             g.value = hist(s.t)
-        for bc, uext, _ in s.outer:
-            arr = compat.function_array(uext)
-            arr[:] = np.asarray(bc.state(s._Xdof, s.t)).T.reshape(-1)
+        from .solver import set_outer_state
+        for bc, uext, _, where in s.outer:
+            set_outer_state(bc, uext, where, s.t)
         p_in = p_rad = 0.0
         for radiating, P in self._power_forms:
             val = compat.assemble_scalar(P, s.comm)
@@ -187,8 +187,6 @@ class EnergyAccount:
         boundary power and dissipation rates) and recompute the stored energy."""
         s = self.solver
         t0 = time.perf_counter()
-        if not hasattr(s, "_Xdof"):
-            s._Xdof = compat.dof_coordinates(s.V).T
         rates = self.rates()
         p_in, p_rad, diss = rates
         fr = dm = 0.0

@@ -106,6 +106,13 @@ def _to_baij(A, bs):
     return B
 
 
+def set_outer_state(bc, uext, where, t):
+    """The outer state of ``bc`` at time t into ``uext`` at the dof blocks ``where`` (the
+    boundary cells'; the other entries stay zero and are not read)."""
+    blocks, X = where
+    compat.function_array(uext).reshape(-1, 5)[blocks] = np.asarray(bc.state(X, t)).T
+
+
 def _nonzeros(vec):
     """(indices, values) of the nonzero owned entries of a PETSc vector."""
     a = vec.array_r
@@ -330,7 +337,7 @@ class Solver:
                 B = compat.assemble_matrix(compat.form(Bf))
                 MB = self.Minv.matMult(B)
                 B.destroy()
-                self.outer.append((bc, uext, MB))
+                self.outer.append((bc, uext, MB, self._outer_points(bc.tag)))
         if Lconst is not None:
             self.c0 = self._minv_vector(Lconst)
         # the load vectors are zero outside the cells on loaded boundaries: added by their
@@ -425,6 +432,14 @@ class Solver:
         b.destroy()
         return out
 
+    def _outer_points(self, tag):
+        """(dof blocks, coordinates (3, m)) of the cells on the facets tagged ``tag``: the only
+        values of an outer state the boundary flux reads (its columns of M^{-1} B)."""
+        facets = self.facet_tags.indices[self.facet_tags.values == tag]
+        cells = np.unique(compat.facet_cells(self.mesh, facets))
+        blocks = np.unique(compat.cell_dofs(self.V)[cells].reshape(-1))
+        return blocks, compat.dof_coordinates(self.V)[blocks].T
+
     def x_like(self):
         return compat.create_vector(self.V)
 
@@ -516,11 +531,8 @@ class Solver:
             o = out.array
             for hist, (idx, vals) in self._loads:
                 o[idx] += vals if hist is None else hist(t) * vals
-        for bc, uext, MB in self.outer:
-            X = compat.dof_coordinates(self.V).T if not hasattr(self, "_Xdof") else self._Xdof
-            self._Xdof = X
-            arr = compat.function_array(uext)
-            arr[:] = np.asarray(bc.state(X, t)).T.reshape(-1)
+        for bc, uext, MB, where in self.outer:
+            set_outer_state(bc, uext, where, t)
             MB.multAdd(compat.function_vector(uext), out, out)
         self.timers.add("bulk operator", time.perf_counter() - t0)
         if rates is not None:
