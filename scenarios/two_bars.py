@@ -30,21 +30,26 @@ from hydrofrac.run import Monitor, RunOptions
 from hydrofrac.run import run as run_problem
 from hydrofrac.solver import Solver
 
-CRACK, SIDES = 10, 1
+CRACK, SIDES, ENDS = 10, 1, 2
 
 
 # ## Geometry
 # A strip [−L, L] × [0, H] of right-angled triangles; the crack is the column of
 # facets at x = 0, the top and bottom are symmetry planes, the ends are free.
-def make_mesh(comm, L, nx):
+def make_mesh(comm, L, nx, ends=False):
+    """The strip; ``ends`` also tags the two ends x = ±L (ENDS), for a strip held at its ends."""
     h = 2 * L / nx
     mesh = compat.create_rectangle(comm, (-L, 0.0), (L, h), nx, 1)
     crack = compat.locate_facets(mesh, lambda x: np.isclose(x[0], 0.0))
     # (one marker per side: a marker sees single vertices, and an end facet has one on each side)
     sides = np.r_[compat.locate_boundary_facets(mesh, lambda x: np.isclose(x[1], 0.0)),
                   compat.locate_boundary_facets(mesh, lambda x: np.isclose(x[1], h))]
-    tags = compat.meshtags(mesh, 1, np.r_[crack, sides], np.r_[np.full(crack.size, CRACK), np.full(sides.size, SIDES)])
-    return mesh, tags
+    idx, val = np.r_[crack, sides], np.r_[np.full(crack.size, CRACK), np.full(sides.size, SIDES)]
+    if ends:
+        e = compat.locate_boundary_facets(mesh, lambda x: np.isclose(np.abs(x[0]), L))
+        e = np.setdiff1d(e, sides)
+        idx, val = np.r_[idx, e], np.r_[val, np.full(e.size, ENDS)]
+    return mesh, compat.meshtags(mesh, 1, idx, val)
 
 
 # ## Model
