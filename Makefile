@@ -31,7 +31,7 @@ TEST_TIMEOUT ?= 1800
 TEST_TIMEOUT_MPI ?= 900
 PYTEST_FLAGS ?=
 
-.PHONY: help setup apt-packages demo gallery test test-serial test-mpi bench studies
+.PHONY: help setup apt-packages demo gallery test test-serial test-mpi bench studies devito-env
 
 help:
 	@sed -n '3,7p' Makefile | sed 's/^# *//'
@@ -115,3 +115,13 @@ studies: setup
 	$(PY) -m hydrofrac.postprocess.study_contact_regularisation
 	$(MPIRUN) -n 2 $(PY) -m hydrofrac.postprocess.study_mesh_grading
 	$(PY) -m hydrofrac.postprocess.study_local_time_stepping
+	$(PY) -m hydrofrac.postprocess.study_peer_devito
+
+# Devito (the external peer of study_peer_devito) in its own environment: optional, not used by
+# make test; Devito 4.8.6 imports with NumPy 1.24 when codepy and cgen are held below 2023
+DEVITO_VENV := .venv-devito
+devito-env: $(DEVITO_VENV)/.installed
+$(DEVITO_VENV)/.installed: postprocess/devito-requirements.txt | apt-packages
+	/usr/bin/python3 -m venv $(DEVITO_VENV)
+	$(DEVITO_VENV)/bin/python -m pip install -r postprocess/devito-requirements.txt
+	touch $@

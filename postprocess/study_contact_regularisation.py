@@ -217,7 +217,8 @@ def main(argv=None):
         for r in table:
             print(f"[study] {r['setup']:17s} {r['map']:11s} d0 {r['delta0']:6.2f} dt x {r['dt_factor']:4.2f} "
                   f"clip {r['clip']!s:5s} TV {r['traction_tv_rel']:.4f} overshoot {r['overshoot_rel']:.4f} "
-                  f"flips {r['flips_per_point_per_ms']:.2f} pen/permitted {r['penetration_rel']:.3g} clips {r['clip_activations']} "
+                  f"flips {r['flips_per_point_per_ms']:.2f} pen/permitted {r['penetration_rel']:.3g} "
+                  f"clips {r['clip_activations']} "
                   f"L1 {r['l1_to_finer']:.3g} rate {r['rate']:.2f} vel err {r['velocity_rel_error']:.4f} "
                   f"balance {r['balance_error_rel']:.2e}", flush=True)
     return rows

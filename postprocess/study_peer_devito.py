@@ -1,0 +1,126 @@
+"""Study: the DG bulk against an external peer, Devito's staggered-grid velocity-stress scheme.
+
+The plane P wave of ``study_work_precision`` (a Gaussian pulse of width 0.12 m crossing the
+unit square for 0.2 m of travel) on both codes, one core each, float64, the same final time:
+
+* DG: P_p, p = 1-3, RK4 at the default CFL, the matrix-free operator, the exact solution as
+  the boundary's outer state; error: the relative energy norm over the unit square;
+* Devito 4.8 (``postprocess/peer_devito.py``, run in Devito's own environment as a child
+  process): space orders 2, 4 and 8, leapfrog at Courant number 0.5, the unit square padded
+  by a ring that keeps its edges out of the square until the final time; error: the same
+  energy norm over the unit square, each field on its own staggered points and times.
+
+Wall times are the time loops only, the minimum of 3 repeats (Devito: its own timer of the
+compiled loop, without the Python call of ``Operator.apply``).  Writes ``peer_devito.csv``
+and ``peer_devito.png`` (``--out``) and prints the frontier ratios at 10 %, 1 % and 0.1 %.
+Devito is optional: ``make devito-env`` installs it into ``.venv-devito``
+(``--devito-python`` or ``HYDROFRAC_DEVITO_PYTHON`` point elsewhere); without it only the DG
+half runs, and the study says so.
+
+    python -m hydrofrac.postprocess.study_peer_devito [--quick] [--out DIR]
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+
+from mpi4py import MPI
+
+from hydrofrac.postprocess.rundata import write_csv
+from hydrofrac.postprocess.study_common import log_axes, save_figure, study_parser, wall_at
+from hydrofrac.postprocess.study_work_precision import DIRECTION, MAT, TRAVEL, WIDTH, run_dg
+
+ROOT = Path(__file__).resolve().parents[1]
+DG = {1: (8, 16, 32, 64), 2: (8, 16, 32), 3: (4, 8, 16, 32)}
+DEVITO = {2: (16, 32, 64, 128, 256), 4: (16, 32, 64, 128), 8: (16, 32, 64)}
+QUICK_DG = {1: (8, 16), 3: (4, 8)}
+QUICK_DEVITO = {2: (16, 32), 4: (16, 32)}
+TARGETS = (0.1, 0.01, 0.001)
+
+
+def dg_rows(sizes, repeats=3):
+    rows = []
+    for p, Ns in sizes.items():
+        for N in Ns:
+            runs = [run_dg(MPI.COMM_SELF, p, N) for _ in range(repeats)]
+            best = min(runs, key=lambda r: r["wall_s"])
+            rows.append({**best, "unknowns_unit_square": best["dofs"], "apply_wall_s": best["wall_s"]})
+    return rows
+
+
+def devito_python(arg=None):
+    """The Python of Devito's environment, or None where it is absent."""
+    cand = arg or os.environ.get("HYDROFRAC_DEVITO_PYTHON") or str(ROOT / ".venv-devito" / "bin" / "python")
+    if not Path(cand).exists():
+        return None
+    ok = subprocess.run([cand, "-c", "import devito"], capture_output=True).returncode == 0
+    return cand if ok else None
+
+
+def devito_rows(python, sizes, repeats=3):
+    prm = {"direction": list(map(float, DIRECTION)), "width": WIDTH, "travel": TRAVEL, "rho": MAT.rho,
+           "lam": MAT.lam, "mu": MAT.mu, "repeats": repeats,
+           "cases": [[so, N] for so, Ns in sizes.items() for N in Ns]}
+    with tempfile.TemporaryDirectory() as tmp:
+        src, dst = Path(tmp) / "in.json", Path(tmp) / "out.json"
+        src.write_text(json.dumps(prm))
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "DEVITO_LANGUAGE": "C", "DEVITO_LOGGING": "WARNING"}
+        subprocess.run([python, str(ROOT / "postprocess" / "peer_devito.py"), str(src), str(dst)], check=True,
+                       env=env)
+        return json.loads(dst.read_text())
+
+
+def chart(rows, png):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for m in sorted({r["method"] for r in rows}):
+        rs = sorted([r for r in rows if r["method"] == m], key=lambda r: r["dofs"])
+        ax.loglog([r["wall_s"] for r in rs], [r["rel_error"] for r in rs], "o-" if "DG" in m else "s--", label=m)
+    ax.set_xlabel("wall time of the time loop [s] (one core, min of 3)")
+    ax.set_ylabel("relative energy-norm error")
+    ax.set_title("plane P wave: DG (this code) against Devito's staggered grid")
+    log_axes(ax)
+    save_figure(fig, png)
+
+
+def ratios(rows):
+    dg = [r for r in rows if r["family"] == "DG"]
+    dv = [r for r in rows if r["family"] == "Devito"]
+    out = []
+    for e in TARGETS:
+        a, b = wall_at(dg, e, "rel_error"), wall_at(dv, e, "rel_error")
+        out.append({"error": e, "dg_wall_s": a, "devito_wall_s": b, "ratio": a / b if b else float("nan")})
+    return out
+
+
+def main(argv=None):
+    parser = study_parser(__doc__)
+    parser.add_argument("--devito-python", default=None, help="the Python of an environment with Devito")
+    args = parser.parse_args(argv)
+    rows = dg_rows(QUICK_DG if args.quick else DG)
+    py = devito_python(args.devito_python)
+    if py is None:
+        print("[study] Devito is not installed (make devito-env): only the DG half ran", flush=True)
+    else:
+        rows += devito_rows(py, QUICK_DEVITO if args.quick else DEVITO)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_csv(out / "peer_devito.csv", rows)
+    chart(rows, out / "peer_devito.png")
+    for r in rows:
+        print(f"[study] {r['method']:10s} N {r['N']:4d} unknowns {r['dofs']:8d} steps {r['steps']:5d} "
+              f"wall {r['wall_s'] * 1e3:9.3f} ms  error {r['rel_error']:.3e}", flush=True)
+    if py is not None:
+        for r in ratios(rows):
+            print(f"[study] error {r['error']:.0e}: DG {r['dg_wall_s'] * 1e3:.3g} ms, Devito "
+                  f"{r['devito_wall_s'] * 1e3:.3g} ms, DG/Devito {r['ratio']:.3g}", flush=True)
+    return rows
+
+
+if __name__ == "__main__":
+    main()
