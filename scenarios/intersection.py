@@ -73,11 +73,11 @@ def geometry(x_nf=1.2, nf_length=1.6, perf_length=0.3, path_length=0.6, quick=Fa
 
 
 def description(regularized=True, degree=2, quick=False, x_nf=1.2, tau=30e-6, delta_bar=0.1, nf_tau=1e-3,
-                h_crack=None, h_far=None, growth=None) -> wellbore.Wellbore:
+                h_crack=None, h_far=None, growth=None, ramp=1e-6) -> wellbore.Wellbore:
     """The problem as data: ``growth`` (a :class:`hydrofrac.wellbore.Growth`) grows the cracks
     freely; None grows them along the pre-meshed potential paths."""
     dom, perfs, nfs, paths = geometry(x_nf=x_nf, quick=quick, nf_tau=nf_tau, h_crack=h_crack, h_far=h_far)
-    return wellbore.Wellbore(dom, perfs, pressure_history(), fractures=nfs, paths=() if growth else paths,
+    return wellbore.Wellbore(dom, perfs, pressure_history(rise=ramp), fractures=nfs, paths=() if growth else paths,
                              regularized=regularized, degree=degree, damage=DamageParams(tau=tau),
                              delta_bar=delta_bar, growth=growth)
 
@@ -188,6 +188,8 @@ def main(argv=None, regularized=None):
                    help="aperture-based pressure factor, delta_bar' = 0.1 (default)")
     g.add_argument("--unregularized", dest="reg", action="store_false", help="f_p = 1 at connection")
     parser.add_argument("--x-nf", type=float, default=1.2, help="x position of the natural fracture [m]")
+    parser.add_argument("--ramp", type=float, default=1e-6,
+                        help="rise time of the pressure from p0 to 19.4 MPa [s] (default 1 µs)")
     parser.add_argument("--tau", type=float, default=30e-6,
                         help="damage relaxation time tau~ of the intact paths [s] (default 30 µs: they "
                              "debond within the 1 ms problem)")
@@ -220,7 +222,10 @@ def main(argv=None, regularized=None):
         v = getattr(args, key)
         if v is not None and not 0 < v < 1.0:
             parser.error(f"--{key.replace('_', '-')} must be in (0, 1) m; got {v}")
+    if not args.ramp > 0:
+        parser.error(f"--ramp must be > 0 s; got {args.ramp}")
     params = dict(regularized=reg, degree=args.degree, quick=args.quick, x_nf=args.x_nf, tau=args.tau,
+                  ramp=args.ramp,
                   nf_tau=args.nf_tau, h_crack=args.h_crack, h_far=args.h_far, growth=wellbore.Growth.from_args(args))
     try:
         description(**params)  # the geometry is checked before anything is meshed
