@@ -81,7 +81,10 @@ class CrackNetwork:
                     continue
                 q = c.points[1] if end == 0 else c.points[-2]
                 d = (p - q) / max(np.linalg.norm(p - q), 1e-300)
-                net.tips.append(TipEnd(c.tag, end, p.copy(), d, active=(c.tag in growing and end == -1)))
+                # a path grows at its last end; a crack that is not a path (a natural fracture)
+                # at both of its free ends
+                active = c.tag in growing and (end == -1 or c.kind != "path")
+                net.tips.append(TipEnd(c.tag, end, p.copy(), d, active=active))
         return net
 
     def _crack_at(self, p, me: CrackLine, end: int, tol: float):

@@ -37,8 +37,9 @@ def radial_paths(domain: Domain, perforations: Sequence[Perforation], lengths: S
 
 @dataclass(frozen=True)
 class Growth:
-    """Free growth from the perforation tips (the options of
-    :func:`hydrofrac.cli.add_growth_arguments`, lengths in crack-facet sizes h)."""
+    """Free growth (the options of :func:`hydrofrac.cli.add_growth_arguments`, lengths in
+    crack-facet sizes h): from the perforation tips and, with ``natural_tips``, from both ends
+    of every natural fracture, each by the same criterion once its onset is met."""
 
     r: float = 4.0
     beta: float = 0.0
@@ -47,6 +48,7 @@ class Growth:
     cod_relax: float = 0.5
     da: float = 2.0
     max_radius: Optional[float] = None
+    natural_tips: bool = True
 
     @classmethod
     def from_args(cls, args) -> Optional["Growth"]:
@@ -54,7 +56,7 @@ class Growth:
             return None
         return cls(r=args.growth_r, beta=args.growth_beta, direction=args.growth_direction,
                    cod_window=args.growth_cod_window, cod_relax=args.growth_cod_relax, da=args.growth_da,
-                   max_radius=args.growth_max_radius)
+                   max_radius=args.growth_max_radius, natural_tips=args.growth_natural_tips)
 
 
 @dataclass(frozen=True)
@@ -105,7 +107,9 @@ def network_of(desc: Wellbore, paths=None, path_tags=None) -> CrackNetwork:
     kind = {PERFORATION: "perforation", NATURAL: "natural", PATH: "path"}
     cracks = [CrackLine(t, kind[PATH if t >= PATH else NATURAL if t >= NATURAL else PERFORATION], pts)
               for t, pts in lines.items()]
-    growing = [c.tag for c in cracks if c.kind in ("path", "perforation")] if desc.growth is not None else ()
+    kinds = ("path", "perforation", "natural") if desc.growth is not None and desc.growth.natural_tips else \
+        ("path", "perforation")
+    growing = [c.tag for c in cracks if c.kind in kinds] if desc.growth is not None else ()
     return CrackNetwork.from_cracks(cracks, desc.domain.wellbore_radius, growing=growing)
 
 
@@ -142,16 +146,16 @@ def setup(desc: Wellbore, comm=MPI.COMM_WORLD, record=None):
 
 
 def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
-    """A :class:`~hydrofrac.growth.GrowthDriver` that grows a crack from every perforation tip
-    (r, Δa in facet sizes ``domain.h_crack``).  The onset is the damage law's s_; tips stop 2h
+    """A :class:`~hydrofrac.growth.GrowthDriver` that grows a crack from every active tip of the
+    network (r, Δa in facet sizes ``domain.h_crack``).  The onset is the damage law's s_; tips stop 2h
     before the outer boundary (and at ``growth.max_radius`` from the centre, if given) and join
     the natural fractures or another crack they reach."""
     from .growth import GrowthDriver, GrowthParams, Tip
     g, dom, perfs = desc.growth, desc.domain, desc.perforations
-    # the growing tips are the network's: the outer ends of the perforations
+    # the growing tips are the network's active ends: the perforations' outer ends and, with
+    # growth.natural_tips, both ends of every natural fracture
     start = network_of(replace(desc, paths=()))
-    tips = [Tip(t.point.copy(), t.direction.copy()) for t in start.tips
-            if t.active and t.tag in {c.tag for c in start.cracks if c.kind == "perforation"}]
+    tips = [Tip(t.point.copy(), t.direction.copy()) for t in start.tips if t.active]
     h = dom.h_crack
     mx, my = dom.half_width - 2 * h, dom.half_height - 2 * h
     rmax = np.inf if g.max_radius is None else g.max_radius

@@ -145,7 +145,7 @@ def test_intersection_free_growth_stays_radial_and_joins(intersections):
         g = json.loads((out / "growth.json").read_text())
         assert [j["tip"] for j in g["joined"]] == [0], (mode, g["joined"])
         assert g["joined"][0]["point"][0] == pytest.approx(1.2, abs=1e-9)
-        for i, path in enumerate(g["paths"]):
+        for i, path in enumerate(g["paths"][:4]):  # the perforation tips (then the natural fracture's)
             p = np.array(path)
             assert len(p) >= 6, (mode, i, len(p) - 1)
             radial = p[0] / np.linalg.norm(p[0])
@@ -155,6 +155,22 @@ def test_intersection_free_growth_stays_radial_and_joins(intersections):
             total = p[-1] - p[0]
             assert abs(np.degrees(np.arctan2(total[0] * radial[1] - total[1] * radial[0], total @ radial))) < 2.0
         assert s["accuracy"]["remeshes"] >= 5 and s["accuracy"]["joined"] == 1
+
+
+def test_natural_fracture_tips_grow_once_loaded(intersections):
+    """Every free crack end is a tip: the natural fracture's two ends grow by the same criterion,
+    on their own state.  Under the confinement they wait; once the hydraulic load has entered
+    the fracture they grow, away from the wellbore side (the paper's figs. 8c, 9c)."""
+    for mode, (s, out) in intersections.items():
+        g = json.loads((out / "growth.json").read_text())
+        t_load = s["accuracy"]["intersection_time"]
+        nf_tips = [4, 5]
+        first = {i: min((e["t"] for e in g["events"] if e["tip"] == i), default=None) for i in nf_tips}
+        assert all(t is not None and t > t_load for t in first.values()), (mode, first, t_load)
+        for i in nf_tips:
+            p = np.array(g["paths"][i])
+            assert p[-1][0] > p[0][0] + 0.05, (mode, i, p)  # beyond the fracture's line x = 1.2, outward
+            assert abs(p[-1][1]) > abs(p[0][1]), (mode, i, p)  # and beyond its end
 
 
 def test_intersection_happens_near_paper_time(intersections):
