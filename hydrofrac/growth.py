@@ -366,12 +366,26 @@ class GrowthDriver:
         self.write()
         return new
 
+    def tip_speeds(self):
+        """Speed of every extension [m/s] (None for a tip's first): the segment's length over
+        the time since the tip's previous extension; in the order of ``events``."""
+        out, seen = [], {}
+        for t, i, _, _ in self.events:
+            k = seen.get(i, 0)
+            seg = np.asarray(self.paths[i][k + 1]) - np.asarray(self.paths[i][k])
+            prev = [e[0] for e in self.events if e[1] == i][k - 1] if k else None
+            out.append(float(np.linalg.norm(seg) / (t - prev)) if prev is not None and t > prev else None)
+            seen[i] = k + 1
+        return out
+
     def report(self):
         """What a summary reports of the growth (its ``accuracy``): remeshes, extensions,
-        joins and the grown length [m]."""
+        joins, the grown length [m] and the fastest extension [m/s]."""
+        speeds = [v for v in self.tip_speeds() if v is not None]
         return {"remeshes": self.count, "extensions": len(self.events), "joined": len(self.joined),
                 "grown_length": sum(float(np.linalg.norm(np.diff(np.array(p), axis=0), axis=1).sum())
-                                    for p in self.paths)}
+                                    for p in self.paths),
+                "tip_speed_max": max(speeds) if speeds else 0.0}
 
     def checkpoint_state(self):
         """The geometry state (JSON text): paths, tips, events, joins, remesh count."""
@@ -413,7 +427,8 @@ class GrowthDriver:
         import json
         from pathlib import Path
         data = {"paths": [np.asarray(p).tolist() for p in self.paths],
-                "events": [{"t": t, "tip": i, "angle_deg": a, "s_max": s_} for t, i, a, s_ in self.events],
+                "events": [{"t": t, "tip": i, "angle_deg": a, "s_max": s_, "speed": v}
+                           for (t, i, a, s_), v in zip(self.events, self.tip_speeds())],
                 "joined": [{"t": t, "tip": i, "point": np.asarray(p).tolist()} for t, i, p in self.joined],
                 "remeshes": self.count}
         network = getattr(self.problem, "network", None)

@@ -63,6 +63,21 @@ class Material:
         return math.sqrt(self.mu / self.rho)
 
     @property
+    def cR(self) -> float:
+        """Rayleigh wave speed: the root xi = c_R/c_s in (0, 1) of
+        (2 - xi^2)^2 = 4 sqrt(1 - xi^2 c_s^2/c_d^2) sqrt(1 - xi^2) (bisection to round-off;
+        1663 m/s for the paper's rock)."""
+        k2 = (self.cs / self.cd) ** 2
+
+        def f(x):
+            return (2 - x * x) ** 2 - 4 * math.sqrt(1 - x * x * k2) * math.sqrt(1 - x * x)
+        lo, hi = 1e-6, 1.0 - 1e-15  # f(lo) < 0 < f(hi) for nu in (-1, 0.5)
+        for _ in range(200):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if f(mid) < 0 else (lo, mid)
+        return 0.5 * (lo + hi) * self.cs
+
+    @property
     def Zd(self) -> float:
         """Dilatational impedance rho c_d (normal component, index 1)."""
         return self.rho * self.cd

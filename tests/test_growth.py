@@ -167,3 +167,20 @@ def test_crack_network_tips_and_junctions():
     assert tips == {(200, 0): False, (200, -1): False, (301, 0): False, (301, -1): True}
     np.testing.assert_allclose([t.direction for t in net.tips if t.tag == 301 and t.end == -1][0], [0.0, 1.0])
     assert net.counts() == {"cracks": 4, "junctions": 2, "tips": 4, "active_tips": 1}
+
+
+def test_tip_speeds_and_the_rayleigh_speed():
+    """Each extension's speed is its length over the time since the tip's previous one (none
+    for a tip's first); the Rayleigh speed of the paper's rock is 0.9110 c_s = 1663 m/s (the
+    root of the Rayleigh equation for nu = 0.2)."""
+    from hydrofrac.growth import GrowthDriver, Tip
+    d = GrowthDriver(lambda polylines: SimpleNamespace(), [Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0])),
+                                                          Tip(np.array([0.0, 1.0]), np.array([0.0, 1.0]))],
+                     GrowthParams(r=0.1), da=0.2, threshold=1.0, tags=[300, 301])
+    d.paths[0] = [np.array(p) for p in ([0.0, 0.0], [0.2, 0.0], [0.4, 0.0], [0.5, 0.0])]
+    d.paths[1] = [np.array(p) for p in ([0.0, 1.0], [0.0, 1.2])]
+    d.events = [(1e-4, 0, 0.0, 1.0), (1.5e-4, 1, 0.0, 1.0), (2e-4, 0, 0.0, 1.0), (2.5e-4, 0, 0.0, 1.0)]
+    assert d.tip_speeds() == [None, None, pytest.approx(2000.0), pytest.approx(2000.0)]
+    assert d.report()["tip_speed_max"] == pytest.approx(2000.0)
+    assert ROCK.cR / ROCK.cs == pytest.approx(0.9110, abs=1e-4)
+    assert ROCK.cR == pytest.approx(1663.2, abs=0.1)
