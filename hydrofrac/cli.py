@@ -135,8 +135,10 @@ def add_growth_arguments(parser):
                              "docs/studies/growth.md)")
     parser.add_argument("--growth-da", type=float, default=2.0,
                         help="length of a growth step, in crack facet sizes h (default 2)")
-    parser.add_argument("--growth-natural-tips", action=argparse.BooleanOptionalAction, default=True,
-                        help="natural fractures grow from their ends too, by the same criterion (default on)")
+    parser.add_argument("--growth-natural-tips", action=argparse.BooleanOptionalAction, default=False,
+                        help="natural fractures grow from their ends too, by the same criterion (default off: "
+                             "the pressure factor then loads their branches ahead of the front, "
+                             "docs/studies/scenarios.md)")
     parser.add_argument("--growth-max-radius", type=float, default=None,
                         help="tips stop at this distance from the wellbore centre [m] (default: only the outer "
                              "boundary stops them)")

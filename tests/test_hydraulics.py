@@ -157,11 +157,13 @@ def test_intersection_free_growth_stays_radial_and_joins(intersections):
         assert s["accuracy"]["remeshes"] >= 5 and s["accuracy"]["joined"] == 1
 
 
-def test_natural_fracture_tips_grow_once_loaded(intersections):
-    """Every free crack end is a tip: the natural fracture's two ends grow by the same criterion,
-    on their own state.  Under the confinement they wait; once the hydraulic load has entered
-    the fracture they grow, away from the wellbore side (the paper's figs. 8c, 9c)."""
-    for mode, (s, out) in intersections.items():
+def test_natural_fracture_tips_grow_once_loaded(tmp_path):
+    """Every free crack end is a tip (``--growth-natural-tips``): the natural fracture's two ends
+    grow by the same criterion, on their own state.  Under the confinement they wait; once the
+    hydraulic load has entered the fracture they grow, away from the wellbore side (the paper's
+    figs. 8c, 9c)."""
+    for mode, (s, out) in {"unregularized": _run("intersection_unregularized.py", tmp_path,
+                                                 "--growth-natural-tips")}.items():
         g = json.loads((out / "growth.json").read_text())
         t_load = s["accuracy"]["intersection_time"]
         nf_tips = [4, 5]
