@@ -85,7 +85,8 @@ class Checkpoint:
             self.dir.mkdir(parents=True, exist_ok=True)
         self.comm.barrier()
         if snapshot is None:
-            snapshot = (solver.x.array_r, solver.t, solver.step_count, solver.energy.__dict__, solver.account.last_rates,
+            snapshot = (solver.x.array_r, solver.t, solver.step_count, solver.energy.__dict__,
+                        solver.account.last_rates,
                         [e.checkpoint_state() for e in solver.extensions])
         x, t, step, energy, rates, ext = snapshot
         data = dict(x=np.array(x), t=t, step=step, ranks=self.comm.size, ndofs=solver.num_dofs,

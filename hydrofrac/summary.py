@@ -84,12 +84,13 @@ def print_summary(s: Dict, file=sys.stdout):
         lines.append(line)
     if "contact" in s:
         c = s["contact"]
-        lines.append(f"  contact     max penetration {c['max_penetration']:.3g} m (permitted {c['permitted_penetration_max']:.3g} m),"
-                     f" opening clip acted {c['clip_activations']} times (deepest {c['clip_depth_max']:.3g}x the "
-                     "permitted penetration)")
+        lines.append(f"  contact     max penetration {c['max_penetration']:.3g} m "
+                     f"(permitted {c['permitted_penetration_max']:.3g} m), opening clip acted "
+                     f"{c['clip_activations']} times (deepest {c['clip_depth_max']:.3g}x the permitted penetration)")
     if "remeshing" in s:
         r = s["remeshing"]
-        lines.append(f"  remeshing   {r['remeshes']} remeshes, {r['wall_s']:.2f} s ({100 * r['share']:.0f}% of the wall time)")
+        lines.append(f"  remeshing   {r['remeshes']} remeshes, {r['wall_s']:.2f} s "
+                     f"({100 * r['share']:.0f}% of the wall time)")
     for k, v in s.get("accuracy", {}).items():
         lines.append(f"  accuracy    {k} = {v:.4g}" if isinstance(v, float) else f"  accuracy    {k} = {v}")
     lines.append(f"  output      {s['output']['paraview']} (ParaView), {s['output']['history']}")

@@ -94,7 +94,8 @@ class KinkMonitor(Monitor):
 
     def report(self, acc):
         return (f"[crack_growth] {acc['extensions']} extensions in {acc['remeshes']} remeshes; first kink "
-                f"{acc.get('tip0_first_kink_deg', float('nan')):.1f}° / {acc.get('tip1_first_kink_deg', float('nan')):.1f}°")
+                f"{acc.get('tip0_first_kink_deg', float('nan')):.1f}° / "
+                f"{acc.get('tip1_first_kink_deg', float('nan')):.1f}°")
 
 
 def run(problem, options: RunOptions):
