@@ -123,10 +123,8 @@ def build(desc: Wellbore, comm=MPI.COMM_WORLD, paths=None, path_tags=None, out=N
     """Mesh, solver, interface, hydraulics and network of ``desc`` (with ``paths``/``path_tags``
     in place of the description's paths: the grown ones).  The network is made first; the
     hydraulic sources are its perforations."""
-    paths = desc.paths if paths is None else paths
     network = network_of(desc, paths, path_tags)
-    fm = fracture_mesh(comm, desc.domain, perforations=desc.perforations, fractures=desc.fractures, paths=paths,
-                       out=out, path_tags=path_tags)
+    fm = fracture_mesh(comm, desc.domain, network=network, out=out)  # Gmsh meshes the network's lines
     sigma0 = -desc.p0 * np.eye(2)
     cracks = ([Crack(t, friction=0.0, damage=1.0, opening=p.width) for t, p in zip(fm.perforations, desc.perforations)]
               + [Crack(t, friction=f.friction, damage=1.0, tau=f.tau) for t, f in zip(fm.naturals, desc.fractures)]

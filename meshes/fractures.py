@@ -210,15 +210,26 @@ def check_geometry(domain: Domain, perforations: Sequence[Perforation] = (), fra
 
 def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perforation] = (),
                   fractures: Sequence[Fracture] = (), paths: Sequence[np.ndarray] = (),
-                  out=None, verbose=False, path_tags: Optional[Sequence[int]] = None) -> FractureMesh:
+                  out=None, verbose=False, path_tags: Optional[Sequence[int]] = None, network=None) -> FractureMesh:
     """Mesh a box with a wellbore, perforations, natural fractures and potential paths.
 
     ``paths`` are polylines (k, 2); every line is validated before Gmsh runs.  ``path_tags``
     (default ``PATH + k``) fixes each path's facet tag, e.g. so that growing cracks keep
-    their tags from one remesh to the next.
+    their tags from one remesh to the next.  ``network`` (a
+    :class:`hydrofrac.network.CrackNetwork`, validated already) gives the crack lines
+    instead of the perforations, fractures and paths.
     """
-    path_tags = [PATH + k for k in range(len(paths))] if path_tags is None else [int(t) for t in path_tags]
-    lines = check_geometry(domain, perforations, fractures, paths, path_tags)
+    if network is not None:
+        lines = {c.tag: c.points for c in network.cracks}
+        kinds = {c.tag: c.kind for c in network.cracks}
+        perf_tags = [t for t in lines if kinds[t] == "perforation"]
+        nat_tags = [t for t in lines if kinds[t] == "natural"]
+        path_tags = [t for t in lines if kinds[t] == "path"]
+    else:
+        path_tags = [PATH + k for k in range(len(paths))] if path_tags is None else [int(t) for t in path_tags]
+        lines = check_geometry(domain, perforations, fractures, paths, path_tags)
+        perf_tags = [PERFORATION + i for i in range(len(perforations))]
+        nat_tags = [NATURAL + j for j in range(len(fractures))]
     tips = _tips(lines)
 
     def build(model):
@@ -294,10 +305,8 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
         gmsh.option.setNumber("Mesh.Algorithm", 6)
 
     mesh, ct, ft = build_mesh(comm, build, name="fractures", out=out, verbose=verbose)
-    return FractureMesh(mesh, ct, ft,
-                        perforations=[PERFORATION + i for i in range(len(perforations))],
-                        naturals=[NATURAL + j for j in range(len(fractures))],
-                        paths=list(path_tags), lines=lines)
+    return FractureMesh(mesh, ct, ft, perforations=perf_tags, naturals=nat_tags, paths=list(path_tags),
+                        lines=lines)
 
 
 def _tips(lines):
