@@ -139,6 +139,9 @@ def add_growth_arguments(parser):
                         help="natural fractures grow from their ends too, by the same criterion (default off: "
                              "the pressure factor then loads their branches ahead of the front, "
                              "docs/studies/scenarios.md)")
+    parser.add_argument("--growth-max-speed", type=float, default=None,
+                        help="largest tip speed [m/s] (default: none; tips then run as fast as the check "
+                             "interval lets them, measured up to 3430 m/s > c_R)")
     parser.add_argument("--growth-max-radius", type=float, default=None,
                         help="tips stop at this distance from the wellbore centre [m] (default: only the outer "
                              "boundary stops them)")
@@ -152,6 +155,7 @@ _GROWTH_CHECKS = (
     ("growth_cod_relax", lambda v: 0 < v <= 1, "in (0, 1]"),
     ("growth_max_radius", lambda v: v > 0, "> 0 m"),
     ("growth_cod_window", lambda v: v > 0, "> 0 (a distance in facet sizes)"),
+    ("growth_max_speed", lambda v: v > 0, "> 0 m/s"),
 )
 
 

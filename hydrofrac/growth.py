@@ -244,6 +244,9 @@ class GrowthDriver:
     that one (the mesh shares the vertex, so union-find merges their networks).  Then it remeshes, transfers fields and interface state
     (:mod:`hydrofrac.transfer`) and returns the new problem; otherwise None.
 
+    ``max_speed`` [m/s], if given, bounds each tip's speed: a tip advances ``da`` no sooner than
+    ``da / max_speed`` after its previous extension (without it, a tip runs as fast as the
+    check interval and its segment's debonding allow, which measured above c_R).
     Remeshes happen only when a tip advanced; ``count`` and the "remesh" timer report them.
     ``record``: a JSON file rewritten (on rank 0) after every growth batch with the tip paths,
     the growth events (time, tip, angle, s̆ max) and the joins, so that a run that stops keeps
@@ -252,9 +255,12 @@ class GrowthDriver:
 
     def __init__(self, build, tips, params: GrowthParams, da: float, threshold: float, tags,
                  check_every: int = 10, ready_damage: float = 0.5, inside=None, domain_size=None,
-                 obstacles=(), record=None):
+                 obstacles=(), record=None, max_speed=None):
         if not da > 0:
             raise ValueError(f"growth increment da must be > 0 m; got {da}")
+        if max_speed is not None and not max_speed > 0:
+            raise ValueError(f"growth max_speed must be > 0 m/s (or None: no limit); got {max_speed}")
+        self.max_speed = max_speed
         if domain_size is not None and not da < domain_size:
             raise ValueError(f"growth increment da = {da} m is not smaller than the domain ({domain_size} m); "
                              "use a da of a few crack-facet sizes")
@@ -322,6 +328,12 @@ class GrowthDriver:
             return None
         ready = [len(p) < 2 or segment_damage(self.iface, self.tags[i], p[-2], p[-1]) >= self.ready_damage
                  for i, p in enumerate(self.paths)]
+        if self.max_speed is not None:  # a tip advances da no sooner than da / max_speed after its last step
+            last = {}
+            for t, i, _, _ in self.events:
+                last[i] = t
+            ready = [r and (i not in last or solver.t - last[i] >= self.da / self.max_speed * (1 - 1e-12))
+                     for i, r in enumerate(ready)]
         before_state = self.checkpoint_state()
         before = [(t.point.copy(), t.direction.copy()) for t in self.tips]
         direction_of = None

@@ -55,6 +55,7 @@ class Growth:
     da: float = 2.0
     max_radius: Optional[float] = None
     natural_tips: bool = False
+    max_speed: Optional[float] = None
 
     @classmethod
     def from_args(cls, args) -> Optional["Growth"]:
@@ -62,7 +63,8 @@ class Growth:
             return None
         return cls(r=args.growth_r, beta=args.growth_beta, direction=args.growth_direction,
                    cod_window=args.growth_cod_window, cod_relax=args.growth_cod_relax, da=args.growth_da,
-                   max_radius=args.growth_max_radius, natural_tips=args.growth_natural_tips)
+                   max_radius=args.growth_max_radius, natural_tips=args.growth_natural_tips,
+                   max_speed=args.growth_max_speed)
 
 
 @dataclass(frozen=True)
@@ -177,4 +179,4 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
                         tags=[PATH + k for k in range(len(tips))],
                         domain_size=2 * min(dom.half_width, dom.half_height),
                         inside=lambda p: abs(p[0]) < mx and abs(p[1]) < my and np.hypot(p[0], p[1]) < rmax,
-                        obstacles=[fracture_points(nf) for nf in desc.fractures])
+                        obstacles=[fracture_points(nf) for nf in desc.fractures], max_speed=g.max_speed)

@@ -220,3 +220,12 @@ def test_regularisation_velocity_spike_measured(intersections):
     # unregularised: the suddenly applied pressure opens the whole fracture
     assert uo > 0.1 * (unreg["p_h_at_intersection"] - 2.425e6) / ROCK.Zd, uo
     assert ro < uo and rv < uv, (ro, uo, rv, uv)
+
+
+def test_growth_speed_limit(intersections, tmp_path):
+    """``--growth-max-speed`` bounds every tip's speed (the default growth, limited only by the
+    check interval and the debonding of the last segment, runs faster than that)."""
+    free = intersections["regularized"][0]["accuracy"]["tip_speed_max"]
+    s, out = _run("intersection_regularized.py", tmp_path, "--growth-max-speed", "1500")
+    speeds = [e["speed"] for e in json.loads((out / "growth.json").read_text())["events"] if e["speed"]]
+    assert free > 1500 and speeds and max(speeds) <= 1500 * (1 + 1e-9), (free, max(speeds))
