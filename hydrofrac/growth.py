@@ -212,6 +212,88 @@ def advance_tips(solver, tips, params: GrowthParams, da: float, threshold: float
     return moved
 
 
+@dataclass(frozen=True)
+class NucleationParams:
+    """Nucleation of new cracks (microcracks) in the bulk.
+
+    Where the effective stress s̆ = sqrt(<s_n>² + (β s_t)²) on the maximising plane (the
+    damage law's weighting, eq. 10) reaches the strength ``s_bar`` at a cell centre, a crack of
+    ``length`` [m] starts there along that plane, bonded (D = 0): the damage law decides
+    whether it opens.  Exclusion: no site within ``exclusion`` [m] of an existing crack or tip,
+    and only where the driver's ``inside`` holds (the boundary margin).  At most one crack per
+    check, ``cap`` per run.  The plane is found on ``n_angles`` orientations in [0°, 180°),
+    refined by a parabola."""
+
+    s_bar: float
+    length: float
+    beta: float = 1.0
+    exclusion: float = 0.0
+    cap: int = 10
+    n_angles: int = 72
+
+    def __post_init__(self):
+        for key in ("s_bar", "length"):
+            if not getattr(self, key) > 0:
+                raise ValueError(f"nucleation {key} must be > 0; got {getattr(self, key)}")
+        if not self.beta >= 0 or not self.exclusion >= 0:
+            raise ValueError(f"nucleation beta and exclusion must be >= 0; got {self.beta}, {self.exclusion}")
+        if not (isinstance(self.cap, int) and self.cap >= 0) or self.n_angles < 8:
+            raise ValueError(f"nucleation cap must be an integer >= 0 and n_angles >= 8; got {self.cap}, "
+                             f"{self.n_angles}")
+
+
+def nucleation_site(solver, params: NucleationParams, lines=(), inside=None):
+    """(s̆ max, centre (2,), plane angle φ [rad] of its normal) of the best nucleation site over
+    all ranks (the same on every rank; collective), or None where no cell is allowed.
+
+    One vectorised pass over the owned cells: the stress at each cell's centre, s̆ on
+    ``n_angles`` planes, the maximum per cell; cells within ``params.exclusion`` of a polyline
+    of ``lines`` or outside ``inside`` are skipped.  Ties (a uniform stress) go to the cell
+    nearest the origin, then the smallest x, y: the choice does not depend on the partition."""
+    from . import compat
+    comm = solver.comm
+    nloc = compat.num_cells_local(solver.mesh)
+    g = solver.geometry
+    cent = g.vertices[:nloc].mean(axis=1)
+    phi_c = solver.ref.tabulate(np.array([[1.0 / 3.0, 1.0 / 3.0]]))[0]
+    U = solver.x.array_r.reshape(-1, 5)
+    sig = np.einsum("n,cnk->ck", phi_c, U[compat.cell_dofs(solver.V)[:nloc]])[:, 2:5]
+    ang = np.linspace(0.0, np.pi, params.n_angles, endpoint=False)
+    c, s_ = np.cos(ang), np.sin(ang)
+    sn = sig[:, :1] * c * c + sig[:, 1:2] * s_ * s_ + 2 * sig[:, 2:3] * c * s_
+    st = (sig[:, 1:2] - sig[:, :1]) * c * s_ + sig[:, 2:3] * (c * c - s_ * s_)
+    seff = rm.effective_stress(np.stack([sn, st], axis=-1), params.beta)  # (cells, angles)
+    best = seff.max(axis=1)
+    ok = np.ones(nloc, bool)
+    if inside is not None:
+        ok &= np.array([bool(inside(p)) for p in cent], dtype=bool) if nloc else ok
+    for line in lines:
+        line = np.asarray(line, float)
+        for a, b in zip(line[:-1], line[1:]):
+            e = b - a
+            u = np.clip((cent - a) @ e / max(e @ e, 1e-300), 0.0, 1.0)
+            ok &= np.linalg.norm(cent - (a + u[:, None] * e), axis=1) >= params.exclusion
+    cand = None
+    if ok.any():
+        idx = np.flatnonzero(ok)
+        top = best[idx].max()
+        tie = idx[best[idx] >= top * (1 - 1e-9)]
+        key = np.lexsort((cent[tie, 1], cent[tie, 0], np.round(np.linalg.norm(cent[tie], axis=1), 9)))
+        k = tie[key[0]]
+        row = seff[k]
+        kk = int(np.argmax(row))  # parabola through the neighbours (periodic in 180°)
+        y0, y1, y2 = row[kk - 1], row[kk], row[(kk + 1) % len(row)]
+        den = y0 - 2 * y1 + y2
+        phi = ang[kk] + (0.5 * (y0 - y2) / den * (ang[1] - ang[0]) if den < 0 else 0.0)
+        cand = (float(top), float(np.linalg.norm(cent[k])), float(cent[k][0]), float(cent[k][1]), float(phi))
+    cands = [c_ for c_ in comm.allgather(cand) if c_ is not None]
+    if not cands:
+        return None
+    top = max(c_[0] for c_ in cands)
+    win = min((c_ for c_ in cands if c_[0] >= top * (1 - 1e-9)), key=lambda c_: (round(c_[1], 9), c_[2], c_[3]))
+    return win[0], np.array(win[2:4]), win[4]
+
+
 def segment_damage(iface, tag, p0, p1):
     """Mean damage (all ranks) of the Gauss points of crack ``tag`` on the segment p0 -> p1:
     a growth driver advances a tip only once its last inserted segment has debonded, so that
@@ -255,19 +337,23 @@ class GrowthDriver:
 
     def __init__(self, build, tips, params: GrowthParams, da: float, threshold: float, tags,
                  check_every: int = 10, ready_damage: float = 0.5, inside=None, domain_size=None,
-                 obstacles=(), record=None, max_speed=None):
+                 obstacles=(), record=None, max_speed=None, nucleation: "NucleationParams | None" = None):
         if not da > 0:
             raise ValueError(f"growth increment da must be > 0 m; got {da}")
         if max_speed is not None and not max_speed > 0:
             raise ValueError(f"growth max_speed must be > 0 m/s (or None: no limit); got {max_speed}")
         self.max_speed = max_speed
+        self.nucleation = nucleation
+        self.nucleations = []  # (t, centre, crack angle [deg], s̆)
         if domain_size is not None and not da < domain_size:
             raise ValueError(f"growth increment da = {da} m is not smaller than the domain ({domain_size} m); "
                              "use a da of a few crack-facet sizes")
         if check_every < 1:
             raise ValueError(f"check_every must be >= 1 step; got {check_every}")
-        self.build, self.tips, self.params, self.da, self.threshold = build, tips, params, da, threshold
+        self.build, self.tips, self.params, self.da, self.threshold = build, list(tips), params, da, threshold
         self.tags = list(tags)
+        from .meshes.fractures import PATH
+        self._tag0 = PATH  # nucleated cracks take the next path tags
         self.check_every, self.ready_damage, self.inside = check_every, ready_damage, inside
         self.obstacles = [np.asarray(o, float) for o in obstacles]
         self.record = record
@@ -358,6 +444,8 @@ class GrowthDriver:
             self.paths[i].append(point.copy())
             self.events.append((solver.t, i, float(np.degrees(theta)), smax))
             grown.append(i)
+        if self._nucleate(solver):
+            grown.append(len(self.tips) - 1)
         if not grown:
             return None
         from .transfer import continue_run, transfer_fields, transfer_interface
@@ -371,12 +459,40 @@ class GrowthDriver:
         self._old_meshes.append(solver.mesh)
         transfer_fields(solver, new.solver)
         continue_run(solver, new.solver)
-        transfer_interface(self.iface, new.interface)
+        if self.iface is not None and new.interface is not None:
+            transfer_interface(self.iface, new.interface)
         new.after_restore()
         self.problem = new
         self.count += 1
         self.write()
         return new
+
+    def _nucleate(self, solver):
+        """Start a crack at the best nucleation site if its s̆ reaches the strength (and the
+        cap allows): two new tips back to back, each with its own path from the centre."""
+        n = self.nucleation
+        if n is None or len(self.nucleations) >= n.cap:
+            return False
+        import time as _time
+        t0 = _time.perf_counter()
+        network = getattr(self.problem, "network", None)
+        lines = ([c.points for c in network.cracks] if network is not None else
+                 list(self.obstacles) + [np.array(p) for p in self.paths if len(p) > 1])
+        lines += [np.array([t.point, t.point]) for t in self.tips]  # and keep away from the tips
+        site = nucleation_site(solver, n, lines, self.inside)
+        solver.timers.add("nucleation", _time.perf_counter() - t0)
+        if site is None or site[0] < n.s_bar:
+            return False
+        seff, centre, phi = site
+        d = np.array([-np.sin(phi), np.cos(phi)])  # along the plane (its normal at phi)
+        centre = np.round(centre, 9)
+        for sign in (1.0, -1.0):
+            end = np.round(centre + sign * 0.5 * n.length * d, 9)
+            self.tips.append(Tip(end, sign * d))
+            self.paths.append([centre.copy(), end])
+            self.tags.append(max(self.tags, default=self._tag0 - 1) + 1)
+        self.nucleations.append((solver.t, centre.copy(), float(np.degrees(np.arctan2(d[1], d[0]))) % 180.0, seff))
+        return True
 
     def tip_speeds(self):
         """Speed of every extension [m/s] (None for a tip's first): the segment's length over
@@ -395,6 +511,7 @@ class GrowthDriver:
         joins, the grown length [m] and the fastest extension [m/s]."""
         speeds = [v for v in self.tip_speeds() if v is not None]
         return {"remeshes": self.count, "extensions": len(self.events), "joined": len(self.joined),
+                "nucleations": len(self.nucleations),
                 "grown_length": sum(float(np.linalg.norm(np.diff(np.array(p), axis=0), axis=1).sum())
                                     for p in self.paths),
                 "tip_speed_max": max(speeds) if speeds else 0.0}
@@ -408,17 +525,22 @@ class GrowthDriver:
                       "active": bool(t.active)} for t in self.tips],
             "events": [list(map(float, e)) for e in self.events],
             "joined": [[float(t), int(i), np.asarray(p).tolist()] for t, i, p in self.joined],
+            "tags": list(map(int, self.tags)),
+            "nucleations": [[float(t), np.asarray(c).tolist(), a, float(s_)] for t, c, a, s_ in self.nucleations],
             "count": self.count}, default=float)
 
     def restore_state(self, text):
         """Set the geometry state from :meth:`checkpoint_state` (no remesh)."""
         import json
         d = json.loads(text)
-        if len(d["tips"]) != len(self.tips):
-            raise ValueError(f"checkpoint has {len(d['tips'])} crack tips, this run {len(self.tips)}")
+        tags = d.get("tags", self.tags)
+        if len(d["tips"]) != len(tags) or tags[:len(self.tags)] != self.tags[:len(tags)]:
+            raise ValueError(f"checkpoint has {len(d['tips'])} crack tips with tags {tags}, this run's tags are "
+                             f"{self.tags}: restart with the same growth options")
         self.paths = [[np.asarray(q, float) for q in p] for p in d["paths"]]
-        for t, st in zip(self.tips, d["tips"]):
-            t.point, t.direction, t.active = np.asarray(st["point"]), np.asarray(st["direction"]), st["active"]
+        self.tags = list(tags)
+        self.tips = [Tip(np.asarray(st["point"]), np.asarray(st["direction"]), st["active"]) for st in d["tips"]]
+        self.nucleations = [(t, np.asarray(c), a, s_) for t, c, a, s_ in d.get("nucleations", [])]
         self.events = [(e[0], int(e[1]), e[2], e[3]) for e in d["events"]]
         self.joined = [(t, i, np.asarray(p)) for t, i, p in d["joined"]]
         self.count = int(d["count"])
@@ -442,6 +564,8 @@ class GrowthDriver:
                 "events": [{"t": t, "tip": i, "angle_deg": a, "s_max": s_, "speed": v}
                            for (t, i, a, s_), v in zip(self.events, self.tip_speeds())],
                 "joined": [{"t": t, "tip": i, "point": np.asarray(p).tolist()} for t, i, p in self.joined],
+                "nucleations": [{"t": t, "centre": np.asarray(c).tolist(), "angle_deg": a, "s_eff": s_}
+                                for t, c, a, s_ in self.nucleations],
                 "remeshes": self.count}
         network = getattr(self.problem, "network", None)
         if network is not None:  # the current geometry: cracks, junctions and tips

@@ -246,7 +246,8 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
             for a, b in zip(pids[:-1], pids[1:]):
                 line_ids.append((1, occ.addLine(a, b)))
                 owner.append(tag)
-        _, out_map = occ.fragment(surf, line_ids)
+        # (a block without cracks yet, e.g. before a crack nucleates: nothing to fragment)
+        out_map = occ.fragment(surf, line_ids)[1] if line_ids else [[x] for x in surf]
         occ.synchronize()
         surfaces = model.getEntities(2)
         model.addPhysicalGroup(2, [s[1] for s in surfaces], ROCK)
@@ -273,6 +274,11 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
             model.addPhysicalGroup(1, well, WELLBORE)
         # size field: fine at cracks, finer at tips, coarse far away
         mf = model.mesh.field
+        if not all_crack and not well:  # no crack and no wellbore: the far size everywhere
+            import gmsh
+            gmsh.option.setNumber("Mesh.MeshSizeMax", domain.h_far)
+            gmsh.option.setNumber("Mesh.MeshSizeMin", domain.h_far)
+            return
         dist = mf.add("Distance")
         mf.setNumbers(dist, "CurvesList", sorted(all_crack) + well)
         mf.setNumber(dist, "NumPointsPerCurve", 200)  # "Sampling" in Gmsh >= 4.11

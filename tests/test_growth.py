@@ -31,7 +31,7 @@ import exact
 from hydrofrac import ROCK
 from hydrofrac.boundary import Absorbing
 from hydrofrac.growth import GrowthParams, argmax_parabola, cod_direction, growth_direction, near_tip_direction
-from hydrofrac.interface import Crack, Interface, crack_facet_indices
+from hydrofrac.interface import Crack, DamageParams, Interface, crack_facet_indices
 from hydrofrac.meshes.fractures import NATURAL, OUTER, Domain, Fracture, fracture_mesh
 from hydrofrac.solver import Solver
 
@@ -184,3 +184,72 @@ def test_tip_speeds_and_the_rayleigh_speed():
     assert d.report()["tip_speed_max"] == pytest.approx(2000.0)
     assert ROCK.cR / ROCK.cs == pytest.approx(0.9110, abs=1e-4)
     assert ROCK.cR == pytest.approx(1663.2, abs=0.1)
+
+
+def nucleation_run(sigma0, beta, steps=12, comm=MPI.COMM_WORLD):
+    """An uncracked block held at a uniform stress ``sigma0`` by absorbing sides, with
+    nucleation (s_bar = 2 MPa, the damage law's) checked every 5 steps; returns the driver."""
+    from hydrofrac.growth import GrowthDriver, NucleationParams
+    from hydrofrac.meshes.fractures import OUTER, Domain, fracture_mesh
+    from hydrofrac.problem import Problem
+    from hydrofrac.boundary import Absorbing
+    s0 = np.asarray(sigma0, float)
+    dmg = DamageParams(beta=beta)
+    dom = Domain(half_width=1.0, half_height=1.0, wellbore_radius=0.0, h_crack=0.05, h_far=0.2, grading=0.5)
+
+    def build(polylines):
+        paths, tags = polylines
+        fm = fracture_mesh(comm, dom, paths=paths, path_tags=tags)
+        cracks = [Crack(t, friction=0.0, damage=0.0) for t in fm.paths]
+        solver = Solver(fm.mesh, 1, ROCK, facet_tags=fm.facet_tags, sigma0=s0, bcs=[Absorbing(OUTER, stress=s0)],
+                        crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks))
+        return Problem(solver, Interface(solver, fm.facet_tags, cracks, damage=dmg) if cracks else None)
+
+    driver = GrowthDriver(build, [], GrowthParams(r=0.2), da=0.1, threshold=dmg.s_onset, tags=[], check_every=5,
+                          inside=lambda p: abs(p[0]) < 0.8 and abs(p[1]) < 0.8,
+                          nucleation=NucleationParams(s_bar=dmg.s_bar, length=0.2, beta=beta, exclusion=0.2, cap=1))
+    problem = driver.problem
+    for _ in range(steps):
+        problem.solver.step()
+        new = driver(problem)
+        problem = new if new is not None else problem
+    return driver
+
+
+@pytest.mark.parametrize("sigma0, beta, angle", [
+    ([[2.2e6, 0.0], [0.0, 0.0]], 1.0, 90.0),          # uniaxial tension along x above s_bar: a crack along y
+    ([[0.0, 0.0], [0.0, 2.2e6]], 1.0, 0.0),           # along y: a crack along x
+    ([[-4e6, 2.2e6], [2.2e6, -4e6]], 1.0, (0.0, 90.0)),  # shear under compression, beta = 1: the shear planes
+])
+def test_nucleation_above_the_strength(sigma0, beta, angle):
+    """Where the bulk effective stress (the damage law's weighting) reaches s_bar, one crack
+    starts, bonded, on the maximising plane: normal to a uniaxial tension; on a plane of
+    maximum shear for a shear-dominated state under compression (s_n < 0 on every plane
+    there, so only the shear counts)."""
+    d = nucleation_run(sigma0, beta)
+    assert len(d.nucleations) == 1
+    t, centre, a, seff = d.nucleations[0]
+    want = angle if isinstance(angle, tuple) else (angle,)
+    assert min(min(abs(a - w), 180 - abs(a - w)) for w in want) < 1.0, a
+    assert seff == pytest.approx(2.2e6, rel=1e-6)
+    assert len(d.tips) == 2 and len(d.paths) == 2
+    assert np.allclose(d.iface.state[0], 0.0) or d.iface.state[0].max() < 1.0  # enters bonded
+
+
+@pytest.mark.parametrize("sigma0, beta", [
+    ([[1.98e6, 0.0], [0.0, 0.0]], 1.0),              # 1 % below the strength
+    ([[-4e6, 2.2e6], [2.2e6, -4e6]], 0.0),           # the same shear with beta = 0: no tension anywhere
+])
+def test_no_nucleation_below_the_strength(sigma0, beta):
+    assert nucleation_run(sigma0, beta).nucleations == []
+
+
+@pytest.mark.mpi
+def test_nucleation_same_on_one_and_two_ranks():
+    """The site and the plane do not depend on the partition (ties of a uniform stress go to
+    the cell nearest the centre on every rank)."""
+    par = nucleation_run([[2.2e6, 0.0], [0.0, 0.0]], 1.0, comm=MPI.COMM_WORLD).nucleations
+    ser = nucleation_run([[2.2e6, 0.0], [0.0, 0.0]], 1.0, comm=MPI.COMM_SELF).nucleations
+    assert len(par) == len(ser) == 1
+    np.testing.assert_allclose(par[0][1], ser[0][1], atol=1e-9)
+    assert par[0][2] == pytest.approx(ser[0][2], abs=1e-9)
