@@ -142,6 +142,9 @@ def add_growth_arguments(parser):
     parser.add_argument("--growth-max-speed", type=float, default=None,
                         help="largest tip speed [m/s] (default: none; tips then run as fast as the check "
                              "interval lets them, measured up to 3430 m/s > c_R)")
+    parser.add_argument("--growth-nucleation-cap", type=int, default=0,
+                        help="at most this many microcracks nucleate where the bulk reaches the strength "
+                             "(default 0: none)")
     parser.add_argument("--growth-max-radius", type=float, default=None,
                         help="tips stop at this distance from the wellbore centre [m] (default: only the outer "
                              "boundary stops them)")
@@ -156,6 +159,7 @@ _GROWTH_CHECKS = (
     ("growth_max_radius", lambda v: v > 0, "> 0 m"),
     ("growth_cod_window", lambda v: v > 0, "> 0 (a distance in facet sizes)"),
     ("growth_max_speed", lambda v: v > 0, "> 0 m/s"),
+    ("growth_nucleation_cap", lambda v: v >= 0, ">= 0"),
 )
 
 

@@ -56,6 +56,7 @@ class Growth:
     max_radius: Optional[float] = None
     natural_tips: bool = False
     max_speed: Optional[float] = None
+    nucleation_cap: int = 0
 
     @classmethod
     def from_args(cls, args) -> Optional["Growth"]:
@@ -64,7 +65,7 @@ class Growth:
         return cls(r=args.growth_r, beta=args.growth_beta, direction=args.growth_direction,
                    cod_window=args.growth_cod_window, cod_relax=args.growth_cod_relax, da=args.growth_da,
                    max_radius=args.growth_max_radius, natural_tips=args.growth_natural_tips,
-                   max_speed=args.growth_max_speed)
+                   max_speed=args.growth_max_speed, nucleation_cap=args.growth_nucleation_cap)
 
 
 @dataclass(frozen=True)
@@ -175,7 +176,12 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
         paths, tags = polylines
         return build(premeshed, comm, paths=paths, path_tags=tags)
 
-    return GrowthDriver(rebuild, tips, params, da=g.da * h, threshold=desc.damage.s_onset,
+    from .growth import NucleationParams
+    # microcracks (nucleation_cap > 0): where the bulk reaches the strength, a crack of Δa, at
+    # least 4h from other cracks and tips, and inside the same margin as the tips
+    nucleation = (NucleationParams(s_bar=desc.damage.s_bar, length=g.da * h, beta=desc.damage.beta,
+                                   exclusion=g.r * h, cap=g.nucleation_cap) if g.nucleation_cap else None)
+    return GrowthDriver(rebuild, tips, params, da=g.da * h, threshold=desc.damage.s_onset, nucleation=nucleation,
                         tags=[PATH + k for k in range(len(tips))],
                         domain_size=2 * min(dom.half_width, dom.half_height),
                         inside=lambda p: abs(p[0]) < mx and abs(p[1]) < my and np.hypot(p[0], p[1]) < rmax,
