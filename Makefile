@@ -113,6 +113,7 @@ studies: setup
 	$(PY) -m hydrofrac.postprocess.study_work_precision_cracks
 	$(PY) -m hydrofrac.postprocess.study_contact_stability
 	$(PY) -m hydrofrac.postprocess.study_contact_regularisation
+	$(PY) -m hydrofrac.postprocess.study_crossing
 	$(MPIRUN) -n 2 $(PY) -m hydrofrac.postprocess.study_mesh_grading
 	$(PY) -m hydrofrac.postprocess.study_local_time_stepping
 	$(PY) -m hydrofrac.postprocess.study_peer_devito

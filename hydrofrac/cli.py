@@ -14,6 +14,7 @@ import math
 import os
 from pathlib import Path
 
+from .growth import BRANCH_SPEED
 from .run import RunOptions
 from .solver import MAX_DEGREE
 
@@ -142,6 +143,10 @@ def add_growth_arguments(parser):
     parser.add_argument("--growth-max-speed", type=float, default=None,
                         help="largest tip speed [m/s] (default: none; tips then run as fast as the check "
                              "interval lets them, measured up to 3430 m/s > c_R)")
+    parser.add_argument("--growth-branch-speed", type=float, default=math.inf,
+                        help="a tip this fast [m/s] whose criterion has two separated maxima above the onset "
+                             f"branches (default inf: no branching in the wellbore scenarios yet; the model's value "
+                             f"is 0.5 c_R = {BRANCH_SPEED:.0f}, docs/model.md §6 and docs/studies/growth.md)")
     parser.add_argument("--growth-nucleation-cap", type=int, default=0,
                         help="at most this many microcracks nucleate where the bulk reaches the strength "
                              "(default 0: none)")
@@ -160,6 +165,7 @@ _GROWTH_CHECKS = (
     ("growth_cod_window", lambda v: v > 0, "> 0 (a distance in facet sizes)"),
     ("growth_max_speed", lambda v: v > 0, "> 0 m/s"),
     ("growth_nucleation_cap", lambda v: v >= 0, ">= 0"),
+    ("growth_branch_speed", lambda v: v > 0, "> 0 m/s (inf: no branching)"),
 )
 
 

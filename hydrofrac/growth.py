@@ -22,7 +22,31 @@ import numpy as np
 from mpi4py import MPI
 
 from . import riemann as rm
+from .material import ROCK
 from .probes import stress_at
+
+
+#: trial directions closer than this [deg] to the plane of a crack that a tip met are not
+#: sampled for crossing: those points lie next to the crack met, where its own near field
+#: (not the transmitted stress) dominates
+FAR_SIDE_MARGIN = 15.0
+
+#: a tip that would stop within SNAP * da of another crack meets it (GrowthDriver._crossing)
+SNAP = 0.25
+
+#: the default branching speed [m/s], 0.5 c_R of the paper's rock (docs/model.md §6,
+#: "Branching": experiments branch from 0.36 c_R (PMMA microbranches) to about 0.5 c_R
+#: (macroscopic branches); the criterion on the exact moving-crack field splits at 0.60 c_s)
+BRANCH_SPEED = 0.5 * ROCK.cR
+
+
+def renshaw_pollard_friction(sigma_n, sigma_p, T0):
+    """The smallest friction coefficient for which a crack normal to a frictional interface
+    crosses it (Renshaw & Pollard 1995): -σ_n / (T0 - σ_p) = (0.35 + 0.35/μ) / 1.06, with σ_n
+    the remote stress normal to the interface (compression < 0), σ_p the one parallel to it
+    (normal to the crack) and T0 the tensile strength.  A reference for the crossing study
+    and its test, not used by the criterion."""
+    return 0.35 / (1.06 * (-sigma_n) / (T0 - sigma_p) - 0.35)
 
 
 @dataclass(frozen=True)
@@ -47,7 +71,13 @@ class GrowthParams:
     several extensions towards K_II = 0.  On a grown, kinked crack the full angle can
     overshoot: a kink puts slip of the other sign into the next window, and the paths of
     the full-size intersection problem zigzag with growing amplitude beyond ~1 m with 1;
-    with 0.5 they stay within 2° of radial (docs/studies/growth.md)."""
+    with 0.5 they stay within 2° of radial (docs/studies/growth.md).
+
+    Branching (docs/model.md §6, "Branching"): a ready tip whose current speed (its last
+    extension's) is at least ``branch_speed`` [m/s] (None: no branching) and whose sampled
+    s̆(θ) has two local maxima above the onset, at least ``branch_min_angle`` [deg] apart and
+    each standing ``branch_prominence`` (a fraction of the lower one) above the lowest sample
+    between them, splits into two tips, one along each maximum."""
 
     r: float
     n_angles: int = 121
@@ -58,6 +88,9 @@ class GrowthParams:
     direction: str = "sampled"
     cod_window: float | None = None
     cod_relax: float = 1.0
+    branch_speed: float | None = None
+    branch_min_angle: float = 20.0
+    branch_prominence: float = 0.02
 
     def __post_init__(self):
         if not self.r > 0:
@@ -76,6 +109,13 @@ class GrowthParams:
             raise ValueError(f"growth cod_window must be > 0 m (or None for r); got {self.cod_window}")
         if not 0 < self.cod_relax <= 1:
             raise ValueError(f"growth cod_relax must be in (0, 1]; got {self.cod_relax}")
+        if self.branch_speed is not None and not self.branch_speed > 0:
+            raise ValueError(f"growth branch_speed must be > 0 m/s (or None: no branching); got {self.branch_speed}")
+        if not 0 < self.branch_min_angle < 2 * self.max_angle:
+            raise ValueError(f"growth branch_min_angle must be in (0, {2 * self.max_angle}) degrees; "
+                             f"got {self.branch_min_angle}")
+        if not 0 <= self.branch_prominence < 1:
+            raise ValueError(f"growth branch_prominence must be in [0, 1); got {self.branch_prominence}")
 
 
 def effective_stress_profile(solver, tip, direction, params: GrowthParams):
@@ -100,6 +140,36 @@ def growth_direction(solver, tip, direction, params: GrowthParams):
     if params.fit_window > 0:
         return argmax_fit(theta, s, np.radians(params.fit_window))
     return argmax_parabola(theta, s)
+
+
+def separated_maxima(theta, s, threshold, min_sep, prominence=0.02, edge=None):
+    """The two largest local maxima of sampled ``s(theta)`` that reach ``threshold``, lie at
+    least ``min_sep`` [rad] apart, and each stand ``prominence`` (a fraction of the lower
+    maximum) above the lowest sample between them; maxima within ``edge`` [rad] of the window's
+    ends are not counted.  Returns [(theta*, s*), (theta*, s*)] ordered by |theta*| (then
+    theta* > 0 first), each refined by a parabola, or [] when there are not two."""
+    s = np.asarray(s, float)
+    n = len(s)
+    lo = theta[0] + (edge or 0.0)
+    hi = theta[-1] - (edge or 0.0)
+    peaks = [k for k in range(1, n - 1) if s[k] >= threshold and s[k] > s[k - 1] and s[k] >= s[k + 1]
+             and lo <= theta[k] <= hi]
+    peaks.sort(key=lambda k: -s[k])
+    for a_ in range(len(peaks)):
+        for b_ in range(a_ + 1, len(peaks)):
+            i, j = sorted((peaks[a_], peaks[b_]))
+            if theta[j] - theta[i] < min_sep:
+                continue
+            low = s[i:j + 1].min()
+            if min(s[i], s[j]) - low < prominence * min(s[i], s[j]):
+                continue
+            out = []
+            for k in (i, j):
+                sub = slice(max(k - 1, 0), min(k + 2, n))
+                t_, v_ = argmax_parabola(theta[sub], s[sub])
+                out.append((t_, v_))
+            return sorted(out, key=lambda m: (round(abs(m[0]), 9), -m[0]))
+    return []
 
 
 def argmax_fit(theta, s, window):
@@ -178,22 +248,49 @@ def cod_direction(iface, tag, tip, params: GrowthParams):
     return params.cod_relax * near_tip_direction(1.0, -tot[1] / tot[0], params.beta)
 
 
-def advance_tips(solver, tips, params: GrowthParams, da: float, threshold: float, ready=None, direction_of=None):
+def advance_tips(solver, tips, params: GrowthParams, da: float, threshold: float, ready=None, direction_of=None,
+                 speeds=None, branches=None):
     """Evaluate the criterion at every active (and, if ``ready`` is given, ready) tip; where
     the maximum effective stress reaches
     ``threshold`` (the damage onset s_ by default in the drivers), move the tip by ``da`` in
     the maximising direction.  Returns the list of (index, angle [rad] relative to the old
     direction, s̆ max, new point) of the tips that advanced; ``tips`` are updated in place.
     ``direction_of(i)``, if given, may return the angle to use instead of the sampled
-    maximiser (None: the sampled one)."""
+    maximiser (None: the sampled one).
+
+    Branching: with ``params.branch_speed``, ``speeds[i]`` (the tip's current speed [m/s], None
+    if unknown) and a dict ``branches``, a tip at or above that speed whose profile has two
+    separated maxima (:func:`separated_maxima`) advances along the first of them and
+    ``branches[i] = (angle [rad], s̆, new point)`` gives the second: the caller starts a tip
+    there."""
     if not da > 0:
         raise ValueError(f"growth increment da must be > 0 m; got {da}")
     moved = []
     for i, tip in enumerate(tips):
         if not tip.active or (ready is not None and not ready[i]):
             continue
-        theta, smax = growth_direction(solver, tip.point, tip.direction, params)
+        th_s, s_s = effective_stress_profile(solver, tip.point, tip.direction, params)
+        if params.fit_window > 0:
+            theta, smax = argmax_fit(th_s, s_s, np.radians(params.fit_window))
+        else:
+            theta, smax = argmax_parabola(th_s, s_s)
         if not smax >= threshold:
+            continue
+        two = []
+        if (params.branch_speed is not None and branches is not None and speeds is not None
+                and speeds[i] is not None and speeds[i] >= params.branch_speed):
+            two = separated_maxima(th_s, s_s, threshold, np.radians(params.branch_min_angle),
+                                   params.branch_prominence, np.radians(params.edge_margin))
+        if two:
+            phi0 = np.arctan2(tip.direction[1], tip.direction[0])
+            (theta, smax), (th2, s2) = two
+            d2 = np.array([np.cos(phi0 + th2), np.sin(phi0 + th2)])
+            branches[i] = (th2, s2, np.round(tip.point + da * d2, 9))
+            phi = phi0 + theta
+            d = np.array([np.cos(phi), np.sin(phi)])
+            new_point = np.round(tip.point + da * d, 9)
+            moved.append((i, theta, smax, new_point))
+            tip.point, tip.direction = new_point, d
             continue
         other = direction_of(i) if direction_of is not None else None
         if other is not None:
@@ -361,11 +458,25 @@ class GrowthDriver:
         self.paths = [[np.asarray(t.point, float).copy()] for t in tips]
         self.count = 0
         self.events = []  # (t, tip index, angle [deg], s̆ max)
+        self.tree = []  # growth events with parent and child tips (growth.json's "tree")
+        self.arrested = {}  # tip index -> (point, unit tangent of the crack it met)
         # Old meshes are kept until the driver goes: freeing a DOLFINx 0.5 mesh (with its
         # function spaces) while the run goes on corrupted memory, found by bisection (a
         # later numpy write crashed); the cause inside DOLFINx/petsc4py is not pinned down.
         # A mesh is small next to the fields and operators, which are freed.
         self._old_meshes = []
+        for i, tip in enumerate(self.tips):  # a tip that starts on a crack is arrested there
+            for line in self.obstacles:
+                if min(np.linalg.norm(line[0] - tip.point), np.linalg.norm(line[-1] - tip.point)) < 1e-9:
+                    continue  # the crack's own end (a natural fracture's tip), not a crack met
+                for a, b in zip(line[:-1], line[1:]):
+                    e = b - a
+                    u = float(np.clip((tip.point - a) @ e / max(e @ e, 1e-300), 0.0, 1.0))
+                    if i not in self.arrested and np.linalg.norm(a + u * e - tip.point) < 1e-9:
+                        tip.active = False
+                        self.arrested[i] = (np.asarray(tip.point, float).copy(), e / np.linalg.norm(e))
+                        self.tree.append({"event": "arrest", "t": 0.0, "parent": i, "child": None,
+                                          "angle_deg": None, "speed": None, "point": tip.point.tolist()})
         self.problem = self._build()
 
     def _build(self):
@@ -389,12 +500,24 @@ class GrowthDriver:
         """First point where segment p -> q meets an obstacle, another tip's path, or the
         tip's own path short of its last segment (a crack that curls back onto itself joins
         itself there instead of making a self-intersecting geometry)."""
+        hit = self._crossing(p, q, me)
+        return None if hit is None else hit[0]
+
+    def _crossing(self, p, q, me):
+        """(point, unit tangent of the crack segment met) of :meth:`_first_crossing`, or None.
+
+        A segment that would end within ``SNAP * da`` of another crack (short of it, or past
+        the end of a crack beside it) meets it too, at the crossing of its extension or at
+        the nearest point: a thinner gap would make Gmsh cells of that size, and the CFL
+        step with them (a tip 0.5 µm short of a fracture gave a 5e-11 s step)."""
         own = np.array(self.paths[me][:-1])
         lines = list(self.obstacles) + [np.array(pth) for j, pth in enumerate(self.paths) if j != me and len(pth) > 1]
         if len(own) > 1:
             lines.append(own)
         best, best_s = None, np.inf
         d = q - p
+        snap = SNAP * self.da
+        reach = snap / max(float(np.linalg.norm(d)), 1e-300)
         for line in lines:
             for a, b in zip(line[:-1], line[1:]):
                 e = b - a
@@ -404,9 +527,20 @@ class GrowthDriver:
                 w = a - p
                 s_ = (w[0] * e[1] - w[1] * e[0]) / den  # along p -> q
                 u = (w[0] * d[1] - w[1] * d[0]) / den   # along a -> b
-                if 1e-9 < s_ <= 1 + 1e-12 and -1e-12 <= u <= 1 + 1e-12 and s_ < best_s:
-                    best, best_s = p + s_ * d, s_
-        return best
+                if 1e-9 < s_ <= 1 + reach and -1e-12 <= u <= 1 + 1e-12 and s_ < best_s:
+                    best, best_s = (p + s_ * d, e / np.linalg.norm(e)), s_
+        if best is not None:
+            return best
+        near, near_d = None, snap
+        for line in lines:  # ends beside a crack (e.g. next to its end point): the nearest point
+            for a, b in zip(line[:-1], line[1:]):
+                e = b - a
+                u = float(np.clip((q - a) @ e / max(e @ e, 1e-300), 0.0, 1.0))
+                c = a + u * e
+                dist = float(np.linalg.norm(q - c))
+                if dist < near_d and np.linalg.norm(c - p) > 1e-9:
+                    near, near_d = (c, e / np.linalg.norm(e)), dist
+        return near
 
     def __call__(self, problem):
         solver = problem.solver
@@ -427,23 +561,34 @@ class GrowthDriver:
             def direction_of(i):
                 return (cod_direction(self.iface, self.tags[i], self.tips[i].point, self.params)
                         if len(self.paths[i]) > 1 else None)
-        moved = advance_tips(solver, self.tips, self.params, self.da, self.threshold, ready=ready,
-                             direction_of=direction_of)
-        grown = []
+        speeds = self.current_speeds()
+        branches = {}
+        n_before = len(self.tips)
+        crossed = self._cross(solver, ready)  # arrested tips whose far side reaches the onset
+        moved = advance_tips(solver, self.tips[:n_before], self.params, self.da, self.threshold,
+                             ready=[r and i not in crossed for i, r in enumerate(ready)],
+                             direction_of=direction_of, speeds=speeds, branches=branches)
+        grown = list(crossed.values())
         for i, theta, smax, point in moved:
             if self.inside is not None and not self.inside(point):
                 self.tips[i].point, self.tips[i].direction = before[i]
                 self.tips[i].active = False  # reached the boundary: stops
                 continue
-            hit = self._first_crossing(self.paths[i][-1], point, i)
-            if hit is not None:
-                point = np.round(hit, 9)
-                self.tips[i].point = point
-                self.tips[i].active = False  # joined another crack
-                self.joined.append((solver.t, i, point.copy()))
-            self.paths[i].append(point.copy())
-            self.events.append((solver.t, i, float(np.degrees(theta)), smax))
+            start = self.paths[i][-1]
+            self._extend(solver, i, point, theta, smax)
             grown.append(i)
+            if i in branches:
+                th2, s2, p2 = branches[i]
+                if self.inside is not None and not self.inside(p2):
+                    continue  # the branch would leave the domain: the tip goes on alone
+                phi = np.arctan2(before[i][1][1], before[i][1][0]) + th2
+                j = self._new_tip(start, np.array([np.cos(phi), np.sin(phi)]))
+                self.tips[j].point = p2
+                self._extend(solver, j, p2, th2, s2)
+                self.tree.append({"event": "branch", "t": solver.t, "parent": i, "child": [i, j],
+                                  "angle_deg": [float(np.degrees(theta)), float(np.degrees(th2))],
+                                  "speed": speeds[i], "point": np.asarray(start).tolist()})
+                grown.append(j)
         if self._nucleate(solver):
             grown.append(len(self.tips) - 1)
         if not grown:
@@ -467,6 +612,85 @@ class GrowthDriver:
         self.write()
         return new
 
+    def _new_tip(self, start, direction):
+        """A new tip at ``start`` (its path's first point) heading along ``direction``; returns
+        its index (its tag is the next free path tag)."""
+        self.tips.append(Tip(np.round(np.asarray(start, float), 9), np.asarray(direction, float)))
+        self.paths.append([np.round(np.asarray(start, float), 9)])
+        self.tags.append(max(self.tags, default=self._tag0 - 1) + 1)
+        return len(self.tips) - 1
+
+    def _extend(self, solver, i, point, theta, smax):
+        """Tip ``i`` grows to ``point``; a segment that meets another crack ends on it and the tip
+        is arrested there (it may cross later: :meth:`_cross`)."""
+        hit = self._crossing(self.paths[i][-1], point, i)
+        if hit is not None:
+            point = np.round(hit[0], 9)
+            self.tips[i].point = point
+            self.tips[i].active = False  # arrested on the crack it met
+            self.joined.append((solver.t, i, point.copy()))
+            self.arrested[i] = (point.copy(), np.asarray(hit[1], float))
+            self.tree.append({"event": "arrest", "t": solver.t, "parent": i, "child": None,
+                              "angle_deg": None, "speed": None, "point": point.tolist()})
+        self.paths[i].append(np.asarray(point, float).copy())
+        self.events.append((solver.t, i, float(np.degrees(theta)), smax))
+
+    def far_side_profile(self, solver, i):
+        """(theta [rad, relative to the arrested tip's direction], s̆) sampled as for growth,
+        from the point where tip ``i`` met a crack, on the far side of that crack only: the
+        trial directions at least ``FAR_SIDE_MARGIN`` from the crack's plane.  The stress there
+        is what the interface transmits in its current mode (its Riemann solutions), so
+        crossing depends on bonding, contact and friction only through them."""
+        point, tangent = self.arrested[i]
+        d = self.tips[i].direction
+        theta, s_ = effective_stress_profile(solver, point, d, self.params)
+        nrm = np.array([-tangent[1], tangent[0]])
+        side = np.sign(d @ nrm) or 1.0
+        ang = np.arctan2(d[1], d[0]) + theta
+        off = side * (np.cos(ang) * nrm[0] + np.sin(ang) * nrm[1])  # sine of the angle to the plane
+        far = off >= np.sin(np.radians(FAR_SIDE_MARGIN))
+        return theta[far], s_[far]
+
+    def _cross(self, solver, ready):
+        """Arrested tips whose approach segment has debonded (``ready``) and whose far-side
+        s̆ reaches the onset cross: a new tip starts at the meeting point along the far-side
+        maximiser (no offset along the crack met).  Returns {arrested tip: new tip}."""
+        out = {}
+        for i in sorted(self.arrested):
+            if not ready[i]:
+                continue
+            theta, s_ = self.far_side_profile(solver, i)
+            if theta.size < 3:
+                continue
+            th, smax = argmax_fit(theta, s_, np.radians(self.params.fit_window)) if self.params.fit_window > 0 \
+                else argmax_parabola(theta, s_)
+            if not smax >= self.threshold:
+                continue
+            if min(th - theta[0], theta[-1] - th) < np.radians(self.params.edge_margin):
+                continue  # the maximum sits at the edge of the far-side window: not the transmitted field's
+            point, _ = self.arrested.pop(i)
+            d0 = self.tips[i].direction
+            phi = np.arctan2(d0[1], d0[0]) + th
+            d = np.array([np.cos(phi), np.sin(phi)])
+            new_point = np.round(point + self.da * d, 9)
+            if self.inside is not None and not self.inside(new_point):
+                self.arrested[i] = (point, _)
+                continue
+            j = self._new_tip(point, d)
+            self.tips[j].point, self.tips[j].direction = new_point, d
+            self.tree.append({"event": "crossing", "t": solver.t, "parent": i, "child": j,
+                              "angle_deg": float(np.degrees(th)), "speed": None, "point": point.tolist()})
+            self._extend(solver, j, new_point, th, smax)
+            out[i] = j
+        return out
+
+    def current_speeds(self):
+        """Each tip's current speed [m/s]: that of its last extension (None before its second)."""
+        out = [None] * len(self.tips)
+        for (t, i, _, _), v in zip(self.events, self.tip_speeds()):
+            out[i] = v
+        return out
+
     def _nucleate(self, solver):
         """Start a crack at the best nucleation site if its s̆ reaches the strength (and the
         cap allows): two new tips back to back, each with its own path from the centre."""
@@ -486,32 +710,49 @@ class GrowthDriver:
         seff, centre, phi = site
         d = np.array([-np.sin(phi), np.cos(phi)])  # along the plane (its normal at phi)
         centre = np.round(centre, 9)
+        kids = []
         for sign in (1.0, -1.0):
             end = np.round(centre + sign * 0.5 * n.length * d, 9)
-            self.tips.append(Tip(end, sign * d))
-            self.paths.append([centre.copy(), end])
-            self.tags.append(max(self.tags, default=self._tag0 - 1) + 1)
+            j = self._new_tip(centre, sign * d)
+            self.tips[j].point = end
+            self.paths[j].append(end)
+            kids.append(j)
+        self.tree.append({"event": "nucleation", "t": solver.t, "parent": None, "child": kids,
+                          "angle_deg": float(np.degrees(np.arctan2(d[1], d[0]))) % 180.0, "speed": None,
+                          "point": centre.tolist()})
         self.nucleations.append((solver.t, centre.copy(), float(np.degrees(np.arctan2(d[1], d[0]))) % 180.0, seff))
         return True
 
     def tip_speeds(self):
         """Speed of every extension [m/s] (None for a tip's first): the segment's length over
-        the time since the tip's previous extension; in the order of ``events``."""
-        out, seen = [], {}
+        the time since the tip's previous extension; in the order of ``events``.  A nucleated
+        crack's first segment (from its centre) is not an extension."""
+        n_ev = {}
+        for _, i, _, _ in self.events:
+            n_ev[i] = n_ev.get(i, 0) + 1
+        out, seen, last = [], {}, {}
         for t, i, _, _ in self.events:
-            k = seen.get(i, 0)
+            k = seen.get(i, 0) + (len(self.paths[i]) - 1 - n_ev[i])
             seg = np.asarray(self.paths[i][k + 1]) - np.asarray(self.paths[i][k])
-            prev = [e[0] for e in self.events if e[1] == i][k - 1] if k else None
+            prev = last.get(i)
             out.append(float(np.linalg.norm(seg) / (t - prev)) if prev is not None and t > prev else None)
-            seen[i] = k + 1
+            seen[i], last[i] = seen.get(i, 0) + 1, t
         return out
+
+    def counts(self):
+        """Tips (all, active), branches, nucleations, crossings and arrests (tips arrested now)."""
+        ev = [e["event"] for e in self.tree]
+        return {"tips": len(self.tips), "active_tips": sum(t.active for t in self.tips),
+                "branches": ev.count("branch"), "nucleations": ev.count("nucleation"),
+                "crossings": ev.count("crossing"), "arrests": len(self.arrested)}
 
     def report(self):
         """What a summary reports of the growth (its ``accuracy``): remeshes, extensions,
-        joins, the grown length [m] and the fastest extension [m/s]."""
+        joins, the event counts (:meth:`counts`), the grown length [m] and the fastest
+        extension [m/s]."""
         speeds = [v for v in self.tip_speeds() if v is not None]
         return {"remeshes": self.count, "extensions": len(self.events), "joined": len(self.joined),
-                "nucleations": len(self.nucleations),
+                **self.counts(),
                 "grown_length": sum(float(np.linalg.norm(np.diff(np.array(p), axis=0), axis=1).sum())
                                     for p in self.paths),
                 "tip_speed_max": max(speeds) if speeds else 0.0}
@@ -527,6 +768,8 @@ class GrowthDriver:
             "joined": [[float(t), int(i), np.asarray(p).tolist()] for t, i, p in self.joined],
             "tags": list(map(int, self.tags)),
             "nucleations": [[float(t), np.asarray(c).tolist(), a, float(s_)] for t, c, a, s_ in self.nucleations],
+            "tree": self.tree,
+            "arrested": [[int(i), np.asarray(p).tolist(), np.asarray(e).tolist()] for i, (p, e) in self.arrested.items()],
             "count": self.count}, default=float)
 
     def restore_state(self, text):
@@ -543,6 +786,8 @@ class GrowthDriver:
         self.nucleations = [(t, np.asarray(c), a, s_) for t, c, a, s_ in d.get("nucleations", [])]
         self.events = [(e[0], int(e[1]), e[2], e[3]) for e in d["events"]]
         self.joined = [(t, i, np.asarray(p)) for t, i, p in d["joined"]]
+        self.tree = list(d.get("tree", []))
+        self.arrested = {int(i): (np.asarray(p, float), np.asarray(e, float)) for i, p, e in d.get("arrested", [])}
         self.count = int(d["count"])
 
     def restart(self, text):
@@ -566,6 +811,7 @@ class GrowthDriver:
                 "joined": [{"t": t, "tip": i, "point": np.asarray(p).tolist()} for t, i, p in self.joined],
                 "nucleations": [{"t": t, "centre": np.asarray(c).tolist(), "angle_deg": a, "s_eff": s_}
                                 for t, c, a, s_ in self.nucleations],
+                "tree": self.tree, "counts": self.counts(),
                 "remeshes": self.count}
         network = getattr(self.problem, "network", None)
         if network is not None:  # the current geometry: cracks, junctions and tips

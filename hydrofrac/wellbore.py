@@ -16,6 +16,7 @@ from mpi4py import MPI
 
 from .boundary import Absorbing, PiecewiseLinear, Traction
 from .hydraulics import HydraulicParams
+from .growth import BRANCH_SPEED
 from .interface import ContactParams, Crack, DamageParams, Interface, crack_facet_indices
 from .material import CONFINEMENT, ROCK, Material
 from .meshes.fractures import (NATURAL, OUTER, PATH, PERFORATION, WELLBORE, Domain, Fracture, Perforation,
@@ -57,6 +58,7 @@ class Growth:
     natural_tips: bool = False
     max_speed: Optional[float] = None
     nucleation_cap: int = 0
+    branch_speed: float = float("inf")
 
     @classmethod
     def from_args(cls, args) -> Optional["Growth"]:
@@ -65,7 +67,8 @@ class Growth:
         return cls(r=args.growth_r, beta=args.growth_beta, direction=args.growth_direction,
                    cod_window=args.growth_cod_window, cod_relax=args.growth_cod_relax, da=args.growth_da,
                    max_radius=args.growth_max_radius, natural_tips=args.growth_natural_tips,
-                   max_speed=args.growth_max_speed, nucleation_cap=args.growth_nucleation_cap)
+                   max_speed=args.growth_max_speed, nucleation_cap=args.growth_nucleation_cap,
+                   branch_speed=args.growth_branch_speed)
 
 
 @dataclass(frozen=True)
@@ -169,7 +172,8 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
     if not rmax > dom.wellbore_radius + max(pf.length for pf in perfs):
         raise ValueError(f"growth max_radius {rmax} m does not reach beyond the perforation tips; make it larger")
     params = GrowthParams(r=g.r * h, beta=g.beta, direction=g.direction,
-                          cod_window=(g.cod_window * h if g.cod_window else None), cod_relax=g.cod_relax)
+                          cod_window=(g.cod_window * h if g.cod_window else None), cod_relax=g.cod_relax,
+                          branch_speed=None if np.isinf(g.branch_speed) else g.branch_speed)
     premeshed = replace(desc, paths=())
 
     def rebuild(polylines):

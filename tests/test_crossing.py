@@ -1,0 +1,94 @@
+"""Crossing or arrest of a crack at a natural fracture (docs/model.md §6, "Crossing or
+arrest"), in the ``crossing`` scenario: a debonded crack ends on a closed natural fracture
+normal to it, under remote tension T = 0.7 MPa normal to the crack and compression
+P = 1 MPa across the fracture; the far-side criterion (tensile, β = 0) is evaluated in the
+stress the fracture's interface transmits.
+
+* a bonded fracture (D = 0) is crossed;
+* a frictionless debonded one arrests the crack (it transmits no shear; the far side stays
+  at the remote T = 0.7 MPa, below the onset s_ = 1 MPa), for the whole 0.9 ms;
+* friction decides through the stick and slip solutions.  Renshaw & Pollard's (1995)
+  criterion for a crack normal to a frictional interface, -σ_n / (T0 - σ_p) >
+  (0.35 + 0.35/μ)/1.06 with σ_n = -P, σ_p = T, T0 = s_, gives μ_c = 0.11: μ = 0.05 must
+  arrest and μ = 0.3 must cross;
+* 1 and 2 ranks give the same outcome at the same step;
+* a tip that would stop just short of a crack (closer than da/4) meets it: a thinner gap
+  made a sliver cell and a 5e-11 s step.
+"""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from hydrofrac.growth import SNAP, GrowthDriver, GrowthParams, Tip, renshaw_pollard_friction
+from hydrofrac.loader import scenario
+
+
+def crossing_run(friction, damage=1.0, angle=90.0, comm=MPI.COMM_WORLD, t_end=9e-4):
+    sc = scenario("crossing")
+    problem = sc.setup(comm, angle=angle, friction=friction, damage=damage)
+    while problem.solver.t < t_end * (1 - 1e-12) and sc.outcome(problem.growth)[0] != "crossed":
+        problem.solver.step()
+        new = problem.growth(problem)
+        problem = new if new is not None else problem
+    return problem.growth, sc.outcome(problem.growth)
+
+
+def test_renshaw_pollard_threshold():
+    assert renshaw_pollard_friction(-1.0e6, 0.7e6, 1.0e6) == pytest.approx(0.11, abs=0.005)
+
+
+def test_bonded_fracture_is_crossed():
+    drv, (what, t) = crossing_run(0.0, damage=0.0)
+    assert what == "crossed"
+    assert drv.counts()["crossings"] == 1 and drv.counts()["arrests"] == 0
+    child = [e for e in drv.tree if e["event"] == "crossing"][0]["child"]
+    p = np.array(drv.paths[child])
+    assert p[0][0] == pytest.approx(0.06, abs=1e-9) and p[-1][0] > 0.06  # starts on it, goes beyond
+
+
+def test_frictionless_fracture_arrests():
+    drv, (what, _) = crossing_run(0.0)
+    assert what == "arrested" and drv.counts()["arrests"] == 1 and drv.counts()["crossings"] == 0
+    assert drv.tips[0].active is False
+
+
+@pytest.mark.parametrize("mu, want", [(0.05, "arrested"), (0.3, "crossed")])
+def test_friction_decides_through_the_riemann_solutions(mu, want):
+    assert crossing_run(mu)[1][0] == want
+
+
+@pytest.mark.mpi
+def test_crossing_same_on_one_and_two_ranks():
+    par = crossing_run(0.3, comm=MPI.COMM_WORLD)
+    ser = crossing_run(0.3, comm=MPI.COMM_SELF)
+    assert par[1][0] == ser[1][0] == "crossed"
+    assert par[1][1] == pytest.approx(ser[1][1], rel=1e-9)
+    assert par[0].counts() == ser[0].counts()
+
+
+def test_tip_just_short_of_a_crack_meets_it():
+    d = GrowthDriver(lambda polylines: SimpleNamespace(), [Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0]))],
+                     GrowthParams(r=0.1), da=0.2, threshold=1.0, tags=[300],
+                     obstacles=[np.array([[0.3, -1.0], [0.3, 1.0]]), np.array([[0.0, 0.5], [0.5, 0.5]])])
+    # ends 0.5 µm short of the fracture at x = 0.3: meets it where its extension crosses
+    hit, tangent = d._crossing(np.array([0.1, 0.0]), np.array([0.2999995, 0.0]), 0)
+    np.testing.assert_allclose(hit, [0.3, 0.0]) and np.testing.assert_allclose(np.abs(tangent), [0.0, 1.0])
+    assert d._crossing(np.array([0.1, 0.0]), np.array([0.3 - 1.01 * SNAP * 0.2, 0.0]), 0) is None
+    # ends beside the end of the other crack (0.5, 0.5): meets it at that end
+    hit, _ = d._crossing(np.array([0.6, 0.3]), np.array([0.52, 0.49]), 0)
+    np.testing.assert_allclose(hit, [0.5, 0.5])
+
+
+def test_a_tip_that_starts_on_a_crack_is_arrested():
+    d = GrowthDriver(lambda polylines: SimpleNamespace(), [Tip(np.array([0.3, 0.2]), np.array([1.0, 0.0])),
+                                                          Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0]))],
+                     GrowthParams(r=0.1), da=0.2, threshold=1.0, tags=[300, 301],
+                     obstacles=[np.array([[0.3, -1.0], [0.3, 1.0]])])
+    assert list(d.arrested) == [0] and not d.tips[0].active and d.tips[1].active
+    # a crack's own end (a natural fracture's tip growing from it) is no crack met
+    d = GrowthDriver(lambda polylines: SimpleNamespace(), [Tip(np.array([0.3, 1.0]), np.array([0.0, 1.0]))],
+                     GrowthParams(r=0.1), da=0.2, threshold=1.0, tags=[300],
+                     obstacles=[np.array([[0.3, -1.0], [0.3, 1.0]])])
+    assert d.arrested == {} and d.tips[0].active
