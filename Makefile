@@ -114,6 +114,7 @@ studies: setup
 	$(PY) -m hydrofrac.postprocess.study_contact_stability
 	$(PY) -m hydrofrac.postprocess.study_contact_regularisation
 	$(PY) -m hydrofrac.postprocess.study_crossing
+	$(PY) -m hydrofrac.postprocess.study_path_convergence
 	$(MPIRUN) -n 2 $(PY) -m hydrofrac.postprocess.study_mesh_grading
 	$(PY) -m hydrofrac.postprocess.study_local_time_stepping
 	$(PY) -m hydrofrac.postprocess.study_peer_devito

@@ -19,8 +19,8 @@ from hydrofrac.run import run
 
 
 # ## The problem as data
-def description(quick=False, degree=2, growth=wellbore.Growth()):
-    h = 0.06 if quick else 0.03
+def description(quick=False, degree=2, growth=wellbore.Growth(), h=None):
+    h = h or (0.06 if quick else 0.03)
     return wellbore.Wellbore(
         domain=Domain(half_width=1.5, half_height=1.5, wellbore_radius=0.1, h_crack=h, h_far=0.5, grading=1.0),
         perforations=[Perforation(angle=0.0, length=0.2)],                   # loaded (hydraulic source)

@@ -139,15 +139,18 @@ def test_intersection_free_growth_stays_radial_and_joins(intersections):
     (under-relaxed by 0.5).  By the 4-fold symmetry of the perforations the exact paths
     are radial until the 0° crack nears the natural fracture: every segment within 5° of
     radial (the tolerance of a predicted kink angle), every path within 2° overall (the
-    mode-I tolerance), 5 or more extensions per tip; the 0° crack joins the natural
-    fracture, the others do not reach anything."""
+    mode-I tolerance), 2 or more extensions per tip that does not meet the fracture (under
+    the 1 ms ramp, by 1.3 ms); the 0° crack meets the natural fracture, the others do not
+    reach anything."""
+    from hydrofrac.loader import scenario
+    x_nf = scenario("intersection").X_NF_QUICK
     for mode, (s, out) in intersections.items():
         g = json.loads((out / "growth.json").read_text())
         assert [j["tip"] for j in g["joined"]] == [0], (mode, g["joined"])
-        assert g["joined"][0]["point"][0] == pytest.approx(1.2, abs=1e-9)
+        assert g["joined"][0]["point"][0] == pytest.approx(x_nf, abs=1e-9)
         for i, path in enumerate(g["paths"][:4]):  # the perforation tips (then the natural fracture's)
             p = np.array(path)
-            assert len(p) >= 6, (mode, i, len(p) - 1)
+            assert len(p) >= (2 if i == 0 else 3), (mode, i, len(p) - 1)
             radial = p[0] / np.linalg.norm(p[0])
             seg = np.diff(p, axis=0)
             ang = np.degrees(np.arctan2(seg[:, 0] * radial[1] - seg[:, 1] * radial[0], seg @ radial))
@@ -171,15 +174,33 @@ def test_natural_fracture_tips_grow_once_loaded(tmp_path):
         assert all(t is not None and t > t_load for t in first.values()), (mode, first, t_load)
         for i in nf_tips:
             p = np.array(g["paths"][i])
-            assert p[-1][0] > p[0][0] + 0.05, (mode, i, p)  # beyond the fracture's line x = 1.2, outward
+            seg = p[-1] - p[0]  # beyond the fracture's line, outward: a clear +x component
+            assert seg[0] > 0.2 * np.linalg.norm(seg), (mode, i, p)
             assert abs(p[-1][1]) > abs(p[0][1]), (mode, i, p)  # and beyond its end
 
 
 def test_intersection_happens_near_paper_time(intersections):
+    """--quick (its own fracture distance, 0.52 m: coarser cracks grow later): the
+    intersection within 700-1050 µs, on the 1 ms ramp (p_h between 14.3 and 19.4 MPa)."""
     for mode, (s, _) in intersections.items():
         t = s["accuracy"]["intersection_time"]
-        assert 600e-6 < t < 1000e-6, (mode, t)
+        assert 700e-6 < t < 1050e-6, (mode, t)
+        assert s["accuracy"]["p_h_at_intersection"] == pytest.approx(2.425e6 + 16.975e6 * min(t / 1e-3, 1.0),
+                                                                     rel=1e-9)
         assert abs(s["energy"]["balance_error_relative"]) < 1e-2, (mode, s["energy"])
+
+
+def test_intersection_at_the_papers_time_and_pressure_full_size(tmp_path, run_command):
+    """Full size, 2 ranks, to the intersection: the paper states that at the intersection,
+    ≈ 800 µs, p_h ≈ 16 MPa (docs/model.md); within 10 % of both (the paper's ≈, and our own
+    choice of the fracture's distance, which moves the time in steps of one extension)."""
+    out = tmp_path / "full"
+    cmd = ["mpirun", "--oversubscribe", "-n", "2", sys.executable, str(ROOT / "scenarios" / "intersection_regularized.py"),
+           "--t-end", "8.5e-4", "--frames", "2", "--out", str(out)]
+    run_command(cmd)
+    acc = json.loads((out / "summary.json").read_text())["accuracy"]
+    assert acc["intersection_time"] == pytest.approx(800e-6, rel=0.1), acc
+    assert acc["p_h_at_intersection"] == pytest.approx(16.0e6, rel=0.1), acc
 
 
 def test_pressure_factor_spreads_from_the_junction(intersections):
@@ -226,6 +247,6 @@ def test_growth_speed_limit(intersections, tmp_path):
     """``--growth-max-speed`` bounds every tip's speed (the default growth, limited only by the
     check interval and the debonding of the last segment, runs faster than that)."""
     free = intersections["regularized"][0]["accuracy"]["tip_speed_max"]
-    s, out = _run("intersection_regularized.py", tmp_path, "--growth-max-speed", "1500")
+    s, out = _run("intersection_regularized.py", tmp_path, "--growth-max-speed", "300")
     speeds = [e["speed"] for e in json.loads((out / "growth.json").read_text())["events"] if e["speed"]]
-    assert free > 1500 and speeds and max(speeds) <= 1500 * (1 + 1e-9), (free, max(speeds))
+    assert free > 300 and speeds and max(speeds) <= 300 * (1 + 1e-9), (free, max(speeds))

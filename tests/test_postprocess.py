@@ -26,7 +26,7 @@ NAME = "intersection_regularized"
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory, run_python, repo_root):
     out = tmp_path_factory.mktemp("postprocess_run")
-    run_python([repo_root / "scenarios" / f"{NAME}.py", "--quick", "--t-end", "4.2e-4", "--frames", "6",
+    run_python([repo_root / "scenarios" / f"{NAME}.py", "--quick", "--t-end", "4.2e-4", "--frames", "6", "--ramp", "1e-6",
                 "--out", out], timeout=600)
     return out
 
