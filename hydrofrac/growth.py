@@ -517,7 +517,11 @@ class GrowthDriver:
         best, best_s = None, np.inf
         d = q - p
         snap = SNAP * self.da
-        reach = snap / max(float(np.linalg.norm(d)), 1e-300)
+        length = max(float(np.linalg.norm(d)), 1e-300)
+        reach = snap / length
+        # a hit closer to p than 0.1 µm is p itself: a tip that starts on a crack (a crossing)
+        # sits on it within the 1 nm snap of the points, and leaves it at an angle
+        near0 = 1e-7 / length
         for line in lines:
             for a, b in zip(line[:-1], line[1:]):
                 e = b - a
@@ -527,7 +531,7 @@ class GrowthDriver:
                 w = a - p
                 s_ = (w[0] * e[1] - w[1] * e[0]) / den  # along p -> q
                 u = (w[0] * d[1] - w[1] * d[0]) / den   # along a -> b
-                if 1e-9 < s_ <= 1 + reach and -1e-12 <= u <= 1 + 1e-12 and s_ < best_s:
+                if near0 < s_ <= 1 + reach and -1e-12 <= u <= 1 + 1e-12 and s_ < best_s:
                     best, best_s = (p + s_ * d, e / np.linalg.norm(e)), s_
         if best is not None:
             return best
@@ -538,7 +542,7 @@ class GrowthDriver:
                 u = float(np.clip((q - a) @ e / max(e @ e, 1e-300), 0.0, 1.0))
                 c = a + u * e
                 dist = float(np.linalg.norm(q - c))
-                if dist < near_d and np.linalg.norm(c - p) > 1e-9:
+                if dist < near_d and np.linalg.norm(c - p) > 1e-7:
                     near, near_d = (c, e / np.linalg.norm(e)), dist
         return near
 

@@ -20,7 +20,7 @@ from .growth import BRANCH_SPEED
 from .interface import ContactParams, Crack, DamageParams, Interface, crack_facet_indices
 from .material import CONFINEMENT, ROCK, Material
 from .meshes.fractures import (NATURAL, OUTER, PATH, PERFORATION, WELLBORE, Domain, Fracture, Perforation,
-                               check_geometry, fracture_mesh, fracture_points)
+                               check_geometry, fracture_mesh, fracture_points, perforation_points)
 from .network import CrackLine, CrackNetwork
 from .problem import Problem
 from .solver import Solver
@@ -189,4 +189,5 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
                         tags=[PATH + k for k in range(len(tips))],
                         domain_size=2 * min(dom.half_width, dom.half_height),
                         inside=lambda p: abs(p[0]) < mx and abs(p[1]) < my and np.hypot(p[0], p[1]) < rmax,
-                        obstacles=[fracture_points(nf) for nf in desc.fractures], max_speed=g.max_speed)
+                        obstacles=([fracture_points(nf) for nf in desc.fractures]
+                                   + [perforation_points(dom, pf) for pf in perfs]), max_speed=g.max_speed)
