@@ -92,3 +92,19 @@ def test_a_tip_that_starts_on_a_crack_is_arrested():
                      GrowthParams(r=0.1), da=0.2, threshold=1.0, tags=[300],
                      obstacles=[np.array([[0.3, -1.0], [0.3, 1.0]])])
     assert d.arrested == {} and d.tips[0].active
+
+
+def test_a_crossing_tip_does_not_meet_the_crack_it_starts_on():
+    """A tip that starts on a crack (a crossing) sits on it only to the 1 nm snap of the points;
+    its first segment leaves the crack at an angle and must not meet it at its own start (that
+    made a zero-length segment, which Gmsh cannot mesh)."""
+    d = GrowthDriver(lambda polylines: SimpleNamespace(), [Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0]))],
+                     GrowthParams(r=0.1), da=0.1, threshold=1.0, tags=[300],
+                     obstacles=[np.array([[0.3, -1.0], [0.3, 1.0]])])
+    p = np.array([0.3 - 4e-10, 0.2])  # on the crack x = 0.3 to within 1 nm, on the near side
+    d.paths[0] = [np.array([0.0, 0.2]), p]
+    d.paths.append([p.copy()])
+    d.tips.append(Tip(p.copy(), np.array([np.cos(0.3), np.sin(0.3)])))
+    d.tags.append(301)
+    q = p + 0.1 * np.array([np.cos(0.3), np.sin(0.3)])
+    assert d._crossing(p, q, 1) is None
