@@ -457,6 +457,7 @@ class GrowthDriver:
         self.joined = []  # (t, tip index, point)
         self.paths = [[np.asarray(t.point, float).copy()] for t in tips]
         self.count = 0
+        self.last_criterion_s = 0.0  # criterion and nucleation time of the last call [s]
         self.events = []  # (t, tip index, angle [deg], s̆ max)
         self.tree = []  # growth events with parent and child tips (growth.json's "tree")
         self.arrested = {}  # tip index -> (point, unit tangent of the crack it met)
@@ -548,8 +549,11 @@ class GrowthDriver:
 
     def __call__(self, problem):
         solver = problem.solver
+        self.last_criterion_s = 0.0
         if solver.step_count % self.check_every:
             return None
+        import time as _time
+        t_crit = _time.perf_counter()
         ready = [len(p) < 2 or segment_damage(self.iface, self.tags[i], p[-2], p[-1]) >= self.ready_damage
                  for i, p in enumerate(self.paths)]
         if self.max_speed is not None:  # a tip advances da no sooner than da / max_speed after its last step
@@ -593,8 +597,15 @@ class GrowthDriver:
                                   "angle_deg": [float(np.degrees(theta)), float(np.degrees(th2))],
                                   "speed": speeds[i], "point": np.asarray(start).tolist()})
                 grown.append(j)
+        t_nuc = _time.perf_counter()
         if self._nucleate(solver):
             grown.append(len(self.tips) - 1)
+        # the criterion's share of this call (tips, crossing checks; nucleation has its own
+        # timer), reported as "growth criterion"; run() counts the rest of a remeshing call
+        # as "remesh"
+        crit = t_nuc - t_crit
+        solver.timers.add("growth criterion", crit)
+        self.last_criterion_s = crit + (_time.perf_counter() - t_nuc)
         if not grown:
             return None
         from .transfer import continue_run, transfer_fields, transfer_interface

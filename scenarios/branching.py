@@ -19,16 +19,14 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from hydrofrac import ROCK, cli
-from hydrofrac.boundary import Absorbing
+from hydrofrac import cli
+from hydrofrac.block import block_builder
 from hydrofrac.growth import BRANCH_SPEED, GrowthDriver, GrowthParams, Tip
-from hydrofrac.interface import Crack, DamageParams, Interface, crack_facet_indices
-from hydrofrac.meshes.fractures import OUTER, PATH, Domain, Fracture, fracture_mesh
-from hydrofrac.network import CrackLine, CrackNetwork
+from hydrofrac.interface import Crack, DamageParams
+from hydrofrac.meshes.fractures import PATH, Domain, Fracture
 from hydrofrac.problem import Problem
 from hydrofrac.run import Monitor, RunOptions
 from hydrofrac.run import run as run_problem
-from hydrofrac.solver import Solver
 
 COMPRESSION = 4.0e6              # the outer state's extra compression along the crack [Pa]
 HALF_WIDTH, HALF_HEIGHT, H = 1.5, 1.0, 0.025
@@ -36,24 +34,11 @@ DAMAGE = DamageParams()          # s_ = 1 MPa, s̄ = 2 MPa, τ̃ = 30 µs
 
 
 def make_builder(comm, tension, degree):
-    s0 = np.array([[0.0, 0.0], [0.0, tension]])
-    s_out = np.array([[-COMPRESSION, 0.0], [0.0, tension]])
     dom = Domain(half_width=HALF_WIDTH, half_height=HALF_HEIGHT, wellbore_radius=0.0, h_crack=H, h_far=0.2,
                  grading=0.5)
-
-    def build(polylines):
-        paths, tags = polylines
-        fm = fracture_mesh(comm, dom, fractures=[Fracture((-0.25, 0.0), 0.0, 0.5, friction=0.0)],
-                           paths=paths, path_tags=tags)
-        cracks = ([Crack(fm.naturals[0], friction=0.0, damage=1.0)]
-                  + [Crack(t, friction=0.0, damage=0.0) for t in fm.paths])
-        solver = Solver(fm.mesh, degree, ROCK, facet_tags=fm.facet_tags, sigma0=s0,
-                        bcs=[Absorbing(OUTER, stress=s_out)],
-                        crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks))
-        lines = [CrackLine(t, "path" if t >= PATH else "natural", pts) for t, pts in fm.lines.items()]
-        return Problem(solver, Interface(solver, fm.facet_tags, cracks, damage=DAMAGE),
-                       network=CrackNetwork.from_cracks(lines, growing=fm.paths), facet_tags=fm.facet_tags)
-    return build
+    return block_builder(comm, dom, [Fracture((-0.25, 0.0), 0.0, 0.5, friction=0.0)],
+                         [Crack(0, friction=0.0, damage=1.0)], sigma0=[[0.0, 0.0], [0.0, tension]],
+                         outer_stress=[[-COMPRESSION, 0.0], [0.0, tension]], degree=degree, damage=DAMAGE)
 
 
 def setup(comm=MPI.COMM_WORLD, tension=0.8e6, branch_speed=BRANCH_SPEED, degree=1, record=None) -> Problem:

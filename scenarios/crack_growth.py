@@ -27,16 +27,14 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from hydrofrac import ROCK, cli
-from hydrofrac.boundary import Absorbing
+from hydrofrac import cli
+from hydrofrac.block import block_builder
 from hydrofrac.growth import GrowthDriver, GrowthParams, Tip
-from hydrofrac.interface import Crack, DamageParams, Interface, crack_facet_indices
-from hydrofrac.meshes.fractures import NATURAL, OUTER, PATH, Domain, Fracture, fracture_mesh
-from hydrofrac.network import CrackLine, CrackNetwork
+from hydrofrac.interface import Crack, DamageParams
+from hydrofrac.meshes.fractures import PATH, Domain, Fracture
 from hydrofrac.problem import Problem
 from hydrofrac.run import Monitor, RunOptions
 from hydrofrac.run import run as run_problem
-from hydrofrac.solver import Solver
 
 A, SIGMA = 1.0, 1.0e6
 DAMAGE = DamageParams()  # s_ = 1 MPa, s̄ = 2 MPa, τ̃ = 30 µs
@@ -44,21 +42,10 @@ DAMAGE = DamageParams()  # s_ = 1 MPa, s̄ = 2 MPa, τ̃ = 30 µs
 
 def make_builder(comm, angle, h, half, degree):
     """build((paths, tags)) -> Problem for this scene."""
-    s0 = np.array([[0.0, 0.0], [0.0, SIGMA]])
     dom = Domain(half_width=half, half_height=half, wellbore_radius=0.0, h_crack=h, h_far=1.5, grading=2.0)
-
-    def build(polylines):
-        paths, tags = polylines
-        fm = fracture_mesh(comm, dom, fractures=[Fracture((0.0, 0.0), angle, 2 * A, friction=0.0)],
-                           paths=paths, path_tags=tags)
-        cracks = [Crack(NATURAL, friction=0.0, damage=1.0)] + [Crack(t, friction=0.0, damage=0.0) for t in fm.paths]
-        solver = Solver(fm.mesh, degree, ROCK, facet_tags=fm.facet_tags, sigma0=s0,
-                        bcs=[Absorbing(OUTER, stress=s0)],
-                        crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks), relaxation=1500.0)
-        lines = [CrackLine(t, "natural" if t == NATURAL else "path", pts) for t, pts in fm.lines.items()]
-        return Problem(solver, Interface(solver, fm.facet_tags, cracks, damage=DAMAGE),
-                       network=CrackNetwork.from_cracks(lines, growing=fm.paths), facet_tags=fm.facet_tags)
-    return build
+    return block_builder(comm, dom, [Fracture((0.0, 0.0), angle, 2 * A, friction=0.0)],
+                         [Crack(0, friction=0.0, damage=1.0)], sigma0=[[0.0, 0.0], [0.0, SIGMA]],
+                         degree=degree, damage=DAMAGE, relaxation=1500.0)
 
 
 def setup(comm=MPI.COMM_WORLD, angle=30.0, quick=False, degree=2, record=None) -> Problem:

@@ -27,16 +27,14 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from hydrofrac import ROCK, cli
-from hydrofrac.boundary import Absorbing
+from hydrofrac import cli
+from hydrofrac.block import block_builder
 from hydrofrac.growth import GrowthDriver, GrowthParams, Tip
-from hydrofrac.interface import Crack, DamageParams, Interface, crack_facet_indices
-from hydrofrac.meshes.fractures import OUTER, PATH, Domain, Fracture, fracture_mesh
-from hydrofrac.network import CrackLine, CrackNetwork
+from hydrofrac.interface import Crack, DamageParams
+from hydrofrac.meshes.fractures import PATH, Domain, Fracture
 from hydrofrac.problem import Problem
 from hydrofrac.run import Monitor, RunOptions
 from hydrofrac.run import run as run_problem
-from hydrofrac.solver import Solver
 
 T_REMOTE, P_REMOTE = 0.7e6, 1.0e6   # tension normal to the crack, compression along it [Pa]
 CRACK, FRACTURE = 0.5, 1.0          # lengths [m]
@@ -46,24 +44,12 @@ DAMAGE = DamageParams()             # s_ = 1 MPa, s̄ = 2 MPa, τ̃ = 30 µs
 
 def make_builder(comm, angle, friction, damage, h, degree):
     """build((paths, tags)) -> Problem for this scene."""
-    s0 = np.array([[-P_REMOTE, 0.0], [0.0, T_REMOTE]])
     dom = Domain(half_width=1.5, half_height=1.0, wellbore_radius=0.0, h_crack=h, h_far=0.2, grading=0.5)
     fractures = [Fracture((X_MEET - CRACK / 2, 0.0), 0.0, CRACK, friction=0.0),
                  Fracture((X_MEET, 0.0), angle, FRACTURE, friction=friction)]
-
-    def build(polylines):
-        paths, tags = polylines
-        fm = fracture_mesh(comm, dom, fractures=fractures, paths=paths, path_tags=tags)
-        cracks = ([Crack(fm.naturals[0], friction=0.0, damage=1.0),
-                   Crack(fm.naturals[1], friction=friction, damage=damage)]
-                  + [Crack(t, friction=0.0, damage=0.0) for t in fm.paths])
-        solver = Solver(fm.mesh, degree, ROCK, facet_tags=fm.facet_tags, sigma0=s0,
-                        bcs=[Absorbing(OUTER, stress=s0)],
-                        crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks))
-        lines = [CrackLine(t, "path" if t >= PATH else "natural", pts) for t, pts in fm.lines.items()]
-        return Problem(solver, Interface(solver, fm.facet_tags, cracks, damage=DAMAGE),
-                       network=CrackNetwork.from_cracks(lines, growing=fm.paths), facet_tags=fm.facet_tags)
-    return build
+    return block_builder(comm, dom, fractures, [Crack(0, friction=0.0, damage=1.0),
+                                                Crack(0, friction=friction, damage=damage)],
+                         sigma0=[[-P_REMOTE, 0.0], [0.0, T_REMOTE]], degree=degree, damage=DAMAGE)
 
 
 def setup(comm=MPI.COMM_WORLD, angle=90.0, friction=0.0, damage=1.0, quick=False, degree=1,
