@@ -77,7 +77,8 @@ class GrowthParams:
     extension's) is at least ``branch_speed`` [m/s] (None: no branching) and whose sampled
     s̆(θ) has two local maxima above the onset, at least ``branch_min_angle`` [deg] apart and
     each standing ``branch_prominence`` (a fraction of the lower one) above the lowest sample
-    between them, splits into two tips, one along each maximum."""
+    between them, on either side of the crack's direction and each at least half that angle
+    from it (a fork), splits into two tips, one along each maximum."""
 
     r: float
     n_angles: int = 121
@@ -142,11 +143,12 @@ def growth_direction(solver, tip, direction, params: GrowthParams):
     return argmax_parabola(theta, s)
 
 
-def separated_maxima(theta, s, threshold, min_sep, prominence=0.02, edge=None):
+def separated_maxima(theta, s, threshold, min_sep, prominence=0.02, edge=None, fork=False):
     """The two largest local maxima of sampled ``s(theta)`` that reach ``threshold``, lie at
     least ``min_sep`` [rad] apart, and each stand ``prominence`` (a fraction of the lower
     maximum) above the lowest sample between them; maxima within ``edge`` [rad] of the window's
-    ends are not counted.  Returns [(theta*, s*), (theta*, s*)] ordered by |theta*| (then
+    ends are not counted.  ``fork``: only a pair on either side of theta = 0 (the crack's
+    direction), each at least ``min_sep / 2`` from it, counts.  Returns [(theta*, s*), (theta*, s*)] ordered by |theta*| (then
     theta* > 0 first), each refined by a parabola, or [] when there are not two."""
     s = np.asarray(s, float)
     n = len(s)
@@ -158,7 +160,7 @@ def separated_maxima(theta, s, threshold, min_sep, prominence=0.02, edge=None):
     for a_ in range(len(peaks)):
         for b_ in range(a_ + 1, len(peaks)):
             i, j = sorted((peaks[a_], peaks[b_]))
-            if theta[j] - theta[i] < min_sep:
+            if theta[j] - theta[i] < min_sep or (fork and not theta[i] <= -0.5 * min_sep < 0.5 * min_sep <= theta[j]):
                 continue
             low = s[i:j + 1].min()
             if min(s[i], s[j]) - low < prominence * min(s[i], s[j]):
@@ -280,7 +282,7 @@ def advance_tips(solver, tips, params: GrowthParams, da: float, threshold: float
         if (params.branch_speed is not None and branches is not None and speeds is not None
                 and speeds[i] is not None and speeds[i] >= params.branch_speed):
             two = separated_maxima(th_s, s_s, threshold, np.radians(params.branch_min_angle),
-                                   params.branch_prominence, np.radians(params.edge_margin))
+                                   params.branch_prominence, np.radians(params.edge_margin), fork=True)
         if two:
             phi0 = np.arctan2(tip.direction[1], tip.direction[0])
             (theta, smax), (th2, s2) = two

@@ -114,3 +114,19 @@ def test_branching_same_on_one_and_two_ranks():
     assert par.tree[0]["t"] == pytest.approx(ser.tree[0]["t"], rel=1e-9)
     np.testing.assert_allclose(par.tree[0]["angle_deg"], ser.tree[0]["angle_deg"], atol=0.5)
     assert par.counts() == ser.counts()
+
+
+def test_a_branch_is_a_fork():
+    """Branching takes a fork only: two maxima on either side of the crack's direction, each at
+    least half the minimum separation from it; a straight-on maximum with a side lobe, or two
+    lobes on one side, are a kink (the tip follows the larger)."""
+    th = np.radians(np.linspace(-80, 80, 161))
+
+    def lobes(a, b):
+        return np.exp(-((th - np.radians(a)) / 0.15) ** 2) + 0.95 * np.exp(-((th - np.radians(b)) / 0.15) ** 2)
+
+    sep = np.radians(20)
+    assert len(separated_maxima(th, lobes(-40, 40), 0.5, sep, fork=True)) == 2
+    assert separated_maxima(th, lobes(1, -26), 0.5, sep, fork=True) == []    # straight on + a side lobe
+    assert separated_maxima(th, lobes(-19, -45), 0.5, sep, fork=True) == []  # both on one side
+    assert len(separated_maxima(th, lobes(-19, -45), 0.5, sep)) == 2          # not a fork, but two maxima
