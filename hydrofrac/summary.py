@@ -29,7 +29,10 @@ def build_summary(problem, name: str, wall: float, work: float, steps_run: int, 
     summary["cost_us"] = unit_costs(solver, steps_run)
     if remesh_info is not None:
         t_rm = solver.timers.t.get("remesh", 0.0)
-        summary["remeshing"] = {"remeshes": remesh_info, "wall_s": t_rm, "share": t_rm / wall if wall > 0 else 0.0}
+        setup = comm.allreduce(getattr(solver, "remesh_setup_s", 0.0), op=compat.MPI.MAX)
+        n = max(int(remesh_info), 1)
+        summary["remeshing"] = {"remeshes": remesh_info, "wall_s": t_rm, "share": t_rm / wall if wall > 0 else 0.0,
+                                "per_remesh_s": t_rm / n, "solver_setup_per_remesh_s": setup / n}
     if accuracy:
         summary["accuracy"] = accuracy
     return summary
@@ -90,7 +93,8 @@ def print_summary(s: Dict, file=sys.stdout):
     if "remeshing" in s:
         r = s["remeshing"]
         lines.append(f"  remeshing   {r['remeshes']} remeshes, {r['wall_s']:.2f} s "
-                     f"({100 * r['share']:.0f}% of the wall time)")
+                     f"({100 * r['share']:.0f}% of the wall time), {r.get('per_remesh_s', 0.0):.3f} s each, of which "
+                     f"solver set-up {r.get('solver_setup_per_remesh_s', 0.0):.3f} s")
     for k, v in s.get("accuracy", {}).items():
         lines.append(f"  accuracy    {k} = {v:.4g}" if isinstance(v, float) else f"  accuracy    {k} = {v}")
     lines.append(f"  output      {s['output']['paraview']} (ParaView), {s['output']['history']}")

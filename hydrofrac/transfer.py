@@ -106,6 +106,8 @@ def continue_run(old, new):
     :func:`transfer_fields`); returns the total energy before and after the transfer [J/m]
     (the difference is the transfer's interpolation error)."""
     new.t, new.step_count = old.t, old.step_count
+    # the new solver's own set-up (part of the remesh's time), summed over the remeshes
+    new.remesh_setup_s = getattr(old, "remesh_setup_s", 0.0) + new.timers.t.get("setup", 0.0)
     new.timers = old.timers  # one wall-time split for the whole run
     before = old.energy.total
     new.energy = copy.deepcopy(old.energy)
