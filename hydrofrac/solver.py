@@ -293,7 +293,10 @@ class Solver:
             a_bdry = term if a_bdry is None else a_bdry + term
 
         self._M = None
-        self.Minv = self._inverse_mass()
+        # M^{-1} as a matrix is needed only where it multiplies boundary terms (the boundary
+        # operator, its loads and outer states), unless the whole operator is assembled: the
+        # matrix-free run builds it on the boundary cells only (docs/benchmarks.md, "Remeshing")
+        self.Minv = self._inverse_mass(None if self.operator == "assembled" else self._boundary_cells())
         self.A = self.B = self.matfree = None
         if self.operator == "assembled":
             K = compat.assemble_matrix(compat.form(a_bulk if a_bdry is None else a_bulk + a_bdry))
@@ -348,8 +351,15 @@ class Solver:
         self._work = [self.x_like() for _ in range(len(TABLEAUX[self.scheme][1]) + 2)]
         self.account = EnergyAccount(self, ds, free_tag, n)
 
-    def _inverse_mass(self):
-        """Block-diagonal M^{-1} in closed form: per cell (M_ref^{-1} kron B_c^{-1}) / |det J|.
+    def _boundary_cells(self):
+        """The owned cells with an exterior facet (sorted)."""
+        nloc = compat.num_cells_local(self.mesh)
+        cells = compat.facet_cells(self.mesh, compat.exterior_facet_indices(self.mesh))
+        return np.unique(cells[cells < nloc])
+
+    def _inverse_mass(self, cells=None):
+        """Block-diagonal M^{-1} in closed form: per cell (M_ref^{-1} kron B_c^{-1}) / |det J|,
+        on all owned cells or only on ``cells`` (the other rows empty).
 
         B_c is the 5x5 material block: rho for v, the plane-strain compliance for
         (s_xx, s_yy, s_xy) with the factor 2 of the shear term in C^{-1} sigma : tau.
@@ -371,19 +381,49 @@ class Solver:
         self.Mref_inv = np.ascontiguousarray(Mref_inv)
         self.Binv_scaled = np.ascontiguousarray(Binv / absdet[:, None, None])
         nd = Mref_inv.shape[0] * 5
-        Mref = self.ref.mass()
-        self._mass_blocks = (np.einsum("ij,cab->ciajb", Mref, B[:nloc]) * absdet[:nloc, None, None, None, None]
-                             ).reshape(-1, nd, nd)
-        blocks = np.einsum("ij,cab->ciajb", Mref_inv, self.Binv_scaled[:nloc]).reshape(-1, nd, nd)
-        return self._block_diag_matrix(blocks)
+        self._absdet_own = absdet[:nloc].copy()  # the mass matrix's factors, for M (built on first use)
+        if cells is None:
+            blocks = np.einsum("ij,cab->ciajb", Mref_inv, self.Binv_scaled[:nloc]).reshape(-1, nd, nd)
+            return self._block_diag_matrix(blocks)
+        blocks = np.einsum("ij,cab->ciajb", Mref_inv, self.Binv_scaled[cells]).reshape(-1, nd, nd)
+        return self._block_diag_subset(np.asarray(cells), blocks)
 
     @property
     def M(self):
         """The mass matrix (BAIJ), built on first use: the matrix-free operator and its energy
         kernel do not need it, and it was 40 % of a remesh's set-up at the --quick sizes."""
         if self._M is None:
-            self._M = _to_baij(self._block_diag_matrix(self._mass_blocks), ef.NCOMP)
+            nloc = self._absdet_own.size
+            nd = self.Mref_inv.shape[0] * 5
+            blocks = (np.einsum("ij,cab->ciajb", self.ref.mass(), self.material_blocks[:nloc])
+                      * self._absdet_own[:, None, None, None, None]).reshape(-1, nd, nd)
+            self._M = _to_baij(self._block_diag_matrix(blocks), ef.NCOMP)
         return self._M
+
+    def _block_diag_subset(self, cells, blocks):
+        """PETSc AIJ matrix with the dense blocks of the owned ``cells`` on the diagonal and the
+        rows of every other cell empty."""
+        nd = blocks.shape[1]
+        own, _, bs, _ = compat.dof_counts(self.V)
+        rstart = compat.index_offset(self.V) * bs
+        n = own * bs
+        dofs = compat.cell_dofs(self.V)[cells]
+        rows = (dofs[:, :, None] * bs + np.arange(bs)).reshape(len(cells), nd)  # local row per block row
+        colorder = np.argsort(rows, axis=1)
+        cols = np.take_along_axis(rows, colorder, axis=1) + rstart  # each row's columns, sorted
+        vals = np.take_along_axis(blocks, colorder[:, None, :], axis=2)  # (k, nd, nd) columns sorted
+        flat = rows.reshape(-1)
+        order = np.argsort(flat)
+        counts = np.zeros(n, dtype=np.int64)
+        counts[flat] = nd
+        indptr = np.concatenate([[0], np.cumsum(counts)]).astype(PETSc.IntType)
+        cell_of = np.repeat(np.arange(len(cells)), nd)[order]
+        pos_of = np.tile(np.arange(nd), len(cells))[order]
+        Mat = PETSc.Mat().createAIJ(size=((n, PETSc.DECIDE), (n, PETSc.DECIDE)), bsize=ef.NCOMP,
+                                   csr=(indptr, np.ascontiguousarray(cols[cell_of].reshape(-1), dtype=PETSc.IntType),
+                                        np.ascontiguousarray(vals[cell_of, pos_of, :].reshape(-1))), comm=self.comm)
+        Mat.assemble()
+        return Mat
 
     def _block_diag_matrix(self, blocks):
         """PETSc AIJ matrix with the per-owned-cell dense blocks on the diagonal."""
