@@ -81,6 +81,7 @@ def _kill_after_checkpoint(cmd, ckpt: Path, ranks=2, timeout=300):
     ("two_cracks.py", "two_cracks", ["--t-end", "6e-4"]),
     ("crossing.py", "crossing", ["--friction", "0.3"]),   # an arrest, then a crossing after the restart
     ("branching.py", "branching", []),                    # a branch after the restart
+    ("refracture.py", "refracture", ["--growth", "--growth-nucleation-cap", "2", "--t-end", "2.5e-4"]),  # microcracks
 ])
 def test_kill_and_restart_on_two_ranks_ends_as_a_straight_run(tmp_path, script, name, extra):
     """Checkpoints every second (on rank 0's clock, broadcast: a per-rank decision hung here
@@ -102,12 +103,13 @@ def test_kill_and_restart_on_two_ranks_ends_as_a_straight_run(tmp_path, script, 
     assert ta == tb and fa.keys() == fb.keys() and all(fa[k] == fb[k] for k in fa)
     steps = [int(float(r.split(",")[0])) for r in (killed / "history.csv").read_text().splitlines()[1:]]
     assert steps == sorted(set(steps))
-    if name in ("two_cracks", "crossing", "branching"):
+    if name in ("two_cracks", "crossing", "branching", "refracture"):
         ga = json.loads((straight / "growth.json").read_text())
         gb = json.loads((killed / "growth.json").read_text())
         assert ga == gb and ga["remeshes"] >= 1
         events = {e["event"] for e in ga["tree"]}
-        assert events >= {"crossing": {"arrest", "crossing"}, "branching": {"branch"}}.get(name, set()), events
+        assert events >= {"crossing": {"arrest", "crossing"}, "branching": {"branch"},
+                          "refracture": {"nucleation"}}.get(name, set()), events
 
 
 def test_restart_of_a_finished_run_touches_nothing(tmp_path):
