@@ -137,7 +137,12 @@ def effective_stress_profile(solver, tip, direction, params: GrowthParams):
 def growth_direction(solver, tip, direction, params: GrowthParams):
     """Angle [rad] (relative to the crack direction, counter-clockwise positive) that
     maximises s̆, and the maximum value [Pa]."""
-    theta, s = effective_stress_profile(solver, tip, direction, params)
+    return profile_maximum(*effective_stress_profile(solver, tip, direction, params), params)
+
+
+def profile_maximum(theta, s, params: GrowthParams):
+    """(theta*, s*) of a sampled profile as ``params`` asks: the least-squares parabola over
+    ``fit_window`` (:func:`argmax_fit`), or the three-point parabola when it is 0."""
     if params.fit_window > 0:
         return argmax_fit(theta, s, np.radians(params.fit_window))
     return argmax_parabola(theta, s)
@@ -272,10 +277,7 @@ def advance_tips(solver, tips, params: GrowthParams, da: float, threshold: float
         if not tip.active or (ready is not None and not ready[i]):
             continue
         th_s, s_s = effective_stress_profile(solver, tip.point, tip.direction, params)
-        if params.fit_window > 0:
-            theta, smax = argmax_fit(th_s, s_s, np.radians(params.fit_window))
-        else:
-            theta, smax = argmax_parabola(th_s, s_s)
+        theta, smax = profile_maximum(th_s, s_s, params)
         if not smax >= threshold:
             continue
         two = []
@@ -679,8 +681,7 @@ class GrowthDriver:
             theta, s_ = self.far_side_profile(solver, i)
             if theta.size < 3:
                 continue
-            th, smax = argmax_fit(theta, s_, np.radians(self.params.fit_window)) if self.params.fit_window > 0 \
-                else argmax_parabola(theta, s_)
+            th, smax = profile_maximum(theta, s_, self.params)
             if not smax >= self.threshold:
                 continue
             if min(th - theta[0], theta[-1] - th) < np.radians(self.params.edge_margin):
