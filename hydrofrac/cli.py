@@ -106,6 +106,20 @@ def run_options(args, history_every: int = 1) -> RunOptions:
 
 
 # ----------------------------------------------------------------------------- free growth
+def delta0_type(text):
+    """``--delta0``: a maximum normalised penetration δ'₀ < 0, or ``resolved`` (None: resolved
+    in time from the step and the closing speed, :class:`hydrofrac.interface.ContactParams`)."""
+    if text == "resolved":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number < 0 or 'resolved'; got {text!r}") from None
+    if not value < 0:
+        raise argparse.ArgumentTypeError(f"the maximum normalised penetration must be < 0; got {value}")
+    return value
+
+
 def add_growth_arguments(parser):
     """The free-growth options shared by the wellbore scenarios (intersection, re-fracture):
     ``--growth`` (the default) / ``--premeshed`` and the criterion's parameters, in

@@ -17,7 +17,7 @@ contributions to ghost cells are sent to their owners by a reverse scatter.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Dict, Optional, Sequence
 
 import numpy as np
@@ -69,6 +69,18 @@ class ContactParams:
     """Regularised contact fraction eta (model.md §4).
 
     delta0 : maximum normalised penetration δ'₀ < 0 (penetration never beyond |δ'₀| δ̃)
+        [our choice: −0.01, 80 nm at τ̃ = 30 µs], or None: resolved in time by the interface
+        from its time step, so that the band |δ'₀| δ̃ of the smallest δ̃ spans ``band_steps``
+        steps at ``closing_speed``: δ'₀ = −band_steps · closing_speed · dt / min δ̃
+        (docs/model.md §4, "The band must be resolved in time"; the measured choice between
+        the two is in docs/studies/contact_regularisation.md)
+    local_flow : integrate a closing opening by the exact flow through the band (admissible
+        at any step, so the clip never acts; :meth:`Interface.advance`); False: the plain
+        Runge-Kutta sum, held by the clip (the comparison of the study)
+    band_steps : steps the band spans at the closing speed when δ'₀ is resolved [our choice: 3]
+    closing_speed : the largest closing velocity jump ⟦v⟧ [m/s] expected of the scene (a
+        traction change Δs closes a crack at Δs / Z̃), or None: the fracture velocity scale
+        ṽ = s̄ / Z̃ (a traction of the strength).  Scenes with larger loads give theirs.
     w0 : normalised separation-velocity width w'₀ > 0 of the contact -> separation ramp
         [our choice: 0.01, i.e. a bonded-traction excess of 0.005 s̄]
     regularized : False gives the exact (discontinuous) map of fig. 3, for comparison
@@ -82,19 +94,42 @@ class ContactParams:
         dynamics alone keep it (the tests and studies of the regularisation)
     """
 
-    delta0: float = -0.01
+    delta0: Optional[float] = -0.01
     w0: float = 0.01
     regularized: bool = True
     penalty: Optional[float] = None
     clip: bool = True
+    band_steps: float = 3.0
+    closing_speed: Optional[float] = None
+    local_flow: bool = True
 
     def __post_init__(self):
         if self.penalty is not None and not self.penalty > 0:
             raise ValueError(f"contact penalty stiffness kappa must be > 0 Pa/m (or None); got {self.penalty}")
-        if not self.delta0 < 0:
-            raise ValueError(f"contact delta0 (maximum penetration delta'_0) must be < 0; got {self.delta0}")
+        if self.delta0 is not None and not self.delta0 < 0:
+            raise ValueError(f"contact delta0 (maximum penetration delta'_0) must be < 0 (or None: resolved "
+                             f"in time); got {self.delta0}")
         if not self.w0 > 0:
             raise ValueError(f"contact w0 (velocity width w'_0) must be > 0; got {self.w0}")
+        if not self.band_steps > 0:
+            raise ValueError(f"contact band_steps (steps the band spans) must be > 0; got {self.band_steps}")
+        if self.closing_speed is not None and not self.closing_speed > 0:
+            raise ValueError(f"contact closing_speed must be > 0 m/s (or None: the fracture velocity scale); "
+                             f"got {self.closing_speed}")
+
+    def resolved(self, dt: float, delta_scale: float, v_scale: float) -> "ContactParams":
+        """These parameters with δ'₀ set (if None) so that the band |δ'₀| ``delta_scale``
+        spans ``band_steps`` steps of ``dt`` at the closing speed (``v_scale``, the fracture
+        velocity scale, if no closing speed is given)."""
+        if self.delta0 is not None:
+            return self
+        v = v_scale if self.closing_speed is None else self.closing_speed
+        return replace(self, delta0=-self.band_steps * v * dt / delta_scale)
+
+    def band_span(self, dt: float, delta_scale: float, v_scale: float) -> float:
+        """Steps of ``dt`` in which the band |δ'₀| ``delta_scale`` is crossed at the closing speed."""
+        v = v_scale if self.closing_speed is None else self.closing_speed
+        return abs(self.delta0) * delta_scale / (v * dt)
 
 
 @dataclass(frozen=True)
@@ -245,6 +280,16 @@ class Interface:
                              for t in self.crack_tag], dtype=float)  # tau~ per facet
         self.delta_scale = self.tau * damage.s_bar / self.Zt[:, 0]  # delta~ (eq. 13)
         self.v_scale = damage.s_bar / self.Zt[:, 0]  # v~
+        # delta'_0 resolved in time (ContactParams.delta0 = None), from the smallest delta~ and
+        # the largest v~ of all ranks (collective: a rank without crack facets passes inf / 0)
+        self._band_scales = (solver.comm.allreduce(float(self.delta_scale.min()) if nf else np.inf, op=MPI.MIN),
+                             solver.comm.allreduce(float(self.v_scale.max()) if nf else 0.0, op=MPI.MAX))
+        self._resolved = contact.delta0 is None
+        if np.isfinite(self._band_scales[0]):
+            contact = contact.resolved(solver.dt, *self._band_scales)
+        elif contact.delta0 is None:  # no crack facet anywhere: the band has nothing to resolve
+            contact = replace(contact, delta0=-1.0)
+        self.contact = contact
 
         self._Zq = [np.repeat(Z_, self.nq, axis=0) for Z_ in self.Z]  # per Gauss point, for the energy terms
         self.friction = np.array([crack_by_tag[t].friction for t in self.crack_tag], dtype=float)
@@ -260,6 +305,8 @@ class Interface:
         self.min_opening = np.full((nf, self.nq), np.inf)
         self.clip_count = 0  # points x stages where the opening clip acted (constrain)
         self.clip_depth = 0.0  # the deepest overshoot it caught, in units of the permitted penetration
+        self.closing_max = 0.0  # the fastest closing jump at entry into the contact band [m/s]
+        self._delta_prev = self.state[1].copy()
 
         # M^{-1} blocks of the owned cells next to any crack facet: those next to a facet
         # owned by another rank receive its residual through the reverse scatter
@@ -307,7 +354,7 @@ class Interface:
         z = np.zeros((3, 0, self.nq))
         Rc = np.zeros((0, self._nb, 5))
         empty = kernels.Facets(self._P[:0], self._I[:0], self.nq, self._nb)
-        kernels.interface_stage(X, Rc, np.zeros(5), 0, np.zeros((3, 0, self.nq)), empty,
+        kernels.interface_stage(X, Rc, np.zeros(5), 0, np.zeros((4, 0, self.nq)), empty,
                                 kernels.State(z[0], z[1]),
                                 kernels.Separation(np.zeros((0, self.nq, 2)), np.zeros((0, self.nq)), 1.0),
                                 self._laws)
@@ -317,22 +364,22 @@ class Interface:
 
     def _warn_unresolved_band(self):
         """Warn (rank 0) when the regularised contact band |delta'_0| delta~ is crossed within
-        fewer than 3 time steps at the fracture velocity scale v~ (the band spans
-        |delta'_0| tau~ / dt steps there): eta then jumps within a step and the opening clip,
-        not the regularisation, holds the penetration (docs/model.md §4)."""
+        fewer than 3 time steps at the closing speed (ContactParams.closing_speed, or the fracture
+        velocity scale v~): eta then jumps within a step and the opening clip, not the
+        regularisation, holds the penetration (docs/model.md §4).  Only without the exact
+        closing flow (``ContactParams.local_flow``), which keeps any band admissible."""
         c = self.contact
-        if not (c.regularized and c.penalty is None):
+        if not (c.regularized and c.penalty is None and not c.local_flow) or not np.isfinite(self._band_scales[0]):
             return
-        # collective: a rank that owns no crack facet takes part with +inf
-        tau = self.solver.comm.allreduce(float(self.tau.min()) if self.tau.size else np.inf, op=MPI.MIN)
-        steps = abs(c.delta0) * tau / self.solver.dt
-        if steps < 3 and self.solver.comm.rank == 0:
+        steps = c.band_span(self.solver.dt, *self._band_scales)
+        if steps < 3 * (1 - 1e-9) and self.solver.comm.rank == 0:
             import warnings
-            warnings.warn(f"the contact band |delta'_0| delta~ spans {steps:.2g} time steps at the fracture velocity "
-                          f"scale (|delta'_0| tau~ / dt with delta'_0 = {c.delta0}, tau~ = {tau:.3g} s, "
+            v = self._band_scales[1] if c.closing_speed is None else c.closing_speed
+            warnings.warn(f"the contact band |delta'_0| delta~ spans {steps:.2g} time steps at the closing speed "
+                          f"{v:.3g} m/s (delta'_0 = {c.delta0:.3g}, smallest delta~ = {self._band_scales[0]:.3g} m, "
                           f"dt = {self.solver.dt:.3g} s); below 3 steps eta jumps within a step and the opening clip "
-                          f"holds the penetration (counted in the summary). |delta'_0| >= "
-                          f"{3 * self.solver.dt / tau:.2g} resolves it", stacklevel=3)
+                          f"holds the penetration (counted in the summary). Leave delta0 unset (resolved in time) or "
+                          f"take |delta'_0| >= {3 * v * self.solver.dt / self._band_scales[0]:.2g}", stacklevel=3)
 
     def set_separation_law(self, law: Optional[Callable]):
         """The target traction of the separation mode (see the class docstring); None:
@@ -396,7 +443,7 @@ class Interface:
     def _stage(self, X, t, Rc, nowned):
         """The compiled pass over the crack facets; returns the state rates."""
         z = self.stage_state
-        rates = np.empty_like(z)
+        rates = np.empty((4,) + z.shape[1:])  # (damage, opening, slip, free opening) rates
         with self._r.localForm() as rl:  # zero except between a stage and its finish
             kernels.interface_stage(X, Rc, rl.array, nowned, rates, self._facets, kernels.State(z[0], z[1]),
                                     kernels.Separation(*self._separation(t)), self._laws)
@@ -445,6 +492,25 @@ class Interface:
         self.solver.timers.add("interface kernel", time.perf_counter() - t0)
         return rates
 
+    def advance(self, z0, terms):
+        """The state z0 + sum c k over the Runge-Kutta ``terms`` [(c, rates k)] of a stage or a
+        step, admissible: damage in [D_n, 1]; the opening, where the free opening (the rates'
+        last row, D [[v_S^1]]) closes, by the exact closing flow through the contact band
+        (:func:`hydrofrac.riemann.closing_flow_pt`; ``ContactParams.local_flow``), which never
+        passes the floor delta'_0 delta~ at any step; elsewhere by the Runge-Kutta sum.  The
+        opening clip of :meth:`constrain` stays as a counted safety net."""
+        z = z0.copy()
+        for c, k in terms:
+            z += c * k[:3]
+        c_ = self.contact
+        if c_.regularized and c_.penalty is None and c_.local_flow and z.shape[1] and terms:
+            dxi = sum(c * k[3] for c, k in terms)
+            closing = dxi < 0
+            if closing.any():
+                band = np.broadcast_to(abs(c_.delta0) * self.delta_scale[:, None], dxi.shape)
+                z[1][closing] = rm.closing_flow(z0[1][closing], dxi[closing], band[closing])
+        return self.constrain(z)
+
     def constrain(self, z):
         """Damage stays in [D_n, 1] (never decreases); the opening never goes below the
         maximum penetration delta'_0 delta~ (where eta = 1 and d(delta)/dt = 0)."""
@@ -462,11 +528,26 @@ class Interface:
 
     def end_step(self, x, t, dt):
         t0 = time.perf_counter()
+        self._record_closing(dt)
         self.stage_state = self.state.copy()
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         self.evaluate(x, t, store=True)
         self.min_opening = np.minimum(self.min_opening, self.state[1])
         self.solver.timers.add("state update", time.perf_counter() - t0)
+
+    def _record_closing(self, dt):
+        """The fastest closing met: at points that entered the contact band this step (not
+        penetrating before, delta < 0 now), the separation-mode closing jump -D [[v_S^1]] of the step's
+        start.  The band must span steps at this speed (docs/model.md §4); the summary reports it."""
+        prev = self._delta_prev
+        self._delta_prev = self.state[1].copy()
+        if prev.shape != self.state[1].shape or "w" not in self.last:
+            return
+        entered = (prev >= 0) & (self.state[1] < 0)
+        if entered.any():
+            w = self.last["w"].reshape(prev.shape) * self.v_scale[:, None]
+            D = self.last["D"].reshape(prev.shape)
+            self.closing_max = max(self.closing_max, float((-D * w)[entered].max()))
 
     # ------------------------------------------------------------------ energy
     def dissipation_rates(self):
@@ -540,7 +621,8 @@ class Interface:
     # ------------------------------------------------------------------ checkpoint
     def checkpoint_state(self):
         return {"state": self.state.copy(), "min_opening": self.min_opening.copy(),
-                "clips": np.array([self.clip_count, self.clip_depth])}
+                "clips": np.array([self.clip_count, self.clip_depth, self.closing_max]),
+                "delta_prev": self._delta_prev.copy()}
 
     def restore_state(self, st):
         self.state = np.array(st["state"])
@@ -548,18 +630,32 @@ class Interface:
         self.min_opening = np.array(st["min_opening"])
         if "clips" in st:
             self.clip_count, self.clip_depth = int(st["clips"][0]), float(st["clips"][1])
+            self.closing_max = float(st["clips"][2]) if len(st["clips"]) > 2 else 0.0
+        if "delta_prev" in st:
+            self._delta_prev = np.array(st["delta_prev"])
 
     def contact_report(self):
         """What the summary reports of the contact model (collective): the largest
         penetration and the permitted one [m], and the opening clip's activations (points x
         stages) and its deepest catch relative to the permitted penetration."""
         comm = self.solver.comm
+        met = comm.allreduce(self.closing_max, op=MPI.MAX)
         permitted = abs(self.contact.delta0) * comm.allreduce(
             float(self.delta_scale.max()) if self.delta_scale.size else 0.0, op=MPI.MAX)
         return {"max_penetration": self.max_penetration(), "permitted_penetration_max": permitted,
                 "clip_activations": comm.allreduce(self.clip_count, op=MPI.SUM),
                 "clip_depth_max": comm.allreduce(self.clip_depth, op=MPI.MAX),
-                "regularized": bool(self.contact.regularized), "clip": bool(self.contact.clip)}
+                "regularized": bool(self.contact.regularized), "clip": bool(self.contact.clip),
+                "delta0": float(self.contact.delta0), "resolved": self._resolved,
+                "local_flow": bool(self.contact.local_flow),
+                # a resolved band: the steps it spans at its closing speed (ContactParams)
+                "band_steps": (float(self.contact.band_span(self.solver.dt, *self._band_scales))
+                               if np.isfinite(self._band_scales[0]) else None),
+                "closing_speed": (self._band_scales[1] if self.contact.closing_speed is None
+                                  else float(self.contact.closing_speed)),
+                "closing_speed_met": met,
+                "band_steps_met": (abs(self.contact.delta0) * self._band_scales[0] / (met * self.solver.dt)
+                                   if met > 0 and np.isfinite(self._band_scales[0]) else None)}
 
     # ------------------------------------------------------------------ diagnostics
     def max_penetration(self):

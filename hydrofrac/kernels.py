@@ -147,8 +147,10 @@ def interface_stage(X, Rc, r, nowned, rates, F, Z, Sep, L):
     """One Runge-Kutta stage on the crack facets in one pass: the targets at every Gauss
     point (as :func:`interface_targets`), their flux corrections added to the residuals
     (cell-major Rc for cells below ``nowned``, dof vector r otherwise; :func:`_scatter`),
-    and the state rates (3, nf, nq): damage (eqs. 8-10), normal opening and slip from the
-    target velocity jump [[v*]] = v*- - v*+."""
+    and the rates (4, nf, nq): damage (eqs. 8-10), normal opening and slip from the
+    target velocity jump [[v*]] = v*- - v*+, and the free opening rate D [[v_S^1]] that the
+    opening would have in the separation mode (eta = 0), which the exact closing flow
+    integrates (:meth:`hydrofrac.interface.Interface.advance`)."""
     P, I, nq, nb, D, delta, S0, cS, scale = F.P, F.I, F.nq, F.nb, Z.D, Z.delta, Sep.S0, Sep.cS, Sep.scale
     reg, d0, w0, kappa, beta, s_onset, s_bar, a = L
     nf = P.shape[0]
@@ -164,6 +166,7 @@ def interface_stage(X, Rc, r, nowned, rates, F, Z, Sep, L):
             rates[0, f, q] = damage_rate_pt(D[f, q], Dt, P[f, _TAU], a)
             rates[1, f, q] = o.vmsn - o.vpsn
             rates[2, f, q] = o.vmst - o.vpst
+            rates[3, f, q] = D[f, q] * o.w * P[f, _VS]  # the free opening rate D [[v_S^1]] (eta = 0)
 
 
 #: facets ahead whose cells' field values and residual rows are prefetched: the interface

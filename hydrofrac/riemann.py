@@ -152,6 +152,44 @@ def eta_exact_pt(delta_n, w_n):
 
 
 @njit
+def _band_depth_integral(u):
+    """G at x = 1 - 1/u: G(x) = int_0^x dx' / (1 - r(x')) with 1 - r = (1 - x)^2 (1 + 2x), in
+    closed form (partial fractions): G = u/3 + (2/9) ln u + (2/9) ln(3 - 2/u) - 1/3 - (2/9) ln 3."""
+    return u / 3.0 + (2.0 / 9.0) * np.log(u) + (2.0 / 9.0) * np.log((3.0 - 2.0 / u) / 3.0) - 1.0 / 3.0
+
+
+@njit
+def closing_flow_pt(delta, dxi, band):
+    """The opening after a closing increment ``dxi`` < 0 of the free opening (the time integral
+    of D [[v_S^1]]) from ``delta``, by the exact flow of d(delta)/d(xi) = 1 - eta with eta =
+    r(delta') (pressed together, q = 1; model.md §4): linear down to delta = 0, then inside the band
+    [-band, 0] (band = |delta'_0| delta~) x = -delta / band obeys dx/d(-xi) = (1 - r(x)) / band,
+    and x -> 1 only as -xi -> infinity.  The result is never below -band: the regularised map
+    stays admissible by construction, for any step."""
+    if dxi >= 0.0:
+        return delta + dxi
+    if delta + dxi >= 0.0:
+        return delta + dxi
+    if delta > 0.0:
+        x0, s = 0.0, -(delta + dxi)
+    else:
+        x0, s = -delta / band, -dxi
+    if x0 >= 1.0:
+        return delta  # at (or, with the clip off, past) the floor: eta = 1, d(delta)/d(xi) = 0
+    u0 = 1.0 / (1.0 - x0)
+    target = _band_depth_integral(u0) + s / band
+    u = max(u0, 3.0 * target + 1.0)  # G ~ u/3: Newton from above the root's neighbourhood
+    for _ in range(60):
+        g = _band_depth_integral(u) - target
+        dg = 1.0 / 3.0 + 2.0 / (9.0 * u) + (4.0 / 9.0) / (u * u * (3.0 - 2.0 / u))
+        du = g / dg
+        u = max(u - du, 0.5 * (u + u0))
+        if abs(du) <= 1e-14 * u:
+            break
+    return -band * (1.0 - 1.0 / u)
+
+
+@njit
 def combine_point(vp_n, vp_t, vm_n, vm_t, sp_n, sp_t, sm_n, sm_t, Zp_n, Zp_t, Zm_n, Zm_t, k, D, eta, S_n, S_t,
                   sB_n, vB_n, sB_t, vB_t):
     """The combined target values at one point (eqs. 6-7), given its bonded solution
@@ -312,6 +350,11 @@ def eta_exact(delta_n, w_n):
     return _eta_exact_u(delta_n, w_n)
 
 
+def closing_flow(delta, dxi, band):
+    """:func:`closing_flow_pt`, broadcasting."""
+    return _closing_flow_u(delta, dxi, band)
+
+
 @njit
 def _aB_pt(D, eta, gamma):
     return mode_weights_pt(D, eta, gamma)[0]
@@ -342,6 +385,7 @@ _target_damage_u = vectorize(target_damage_pt, _F3)
 _damage_rate_u = vectorize(damage_rate_pt, _F4)
 _eta_regularized_u = vectorize(eta_regularized_pt, _F4)
 _eta_exact_u = vectorize(eta_exact_pt, _F2)
+_closing_flow_u = vectorize(closing_flow_pt, _F3)
 
 
 # --------------------------------------------------------------------------

@@ -602,11 +602,7 @@ class Solver:
                 x.copy(y)
                 y.maxpy([c for c, _ in terms], [k for _, k in terms])
             for e, ext in enumerate(self.extensions):
-                zi = zs[e].copy()
-                for j, aij in enumerate(a[i]):
-                    if aij:
-                        zi += dt * aij * zk[e][j]
-                ext.stage_state = ext.constrain(zi)
+                ext.stage_state = ext.advance(zs[e], [(dt * aij, zk[e][j]) for j, aij in enumerate(a[i]) if aij])
             if self.extensions and self.matfree is None:  # (the matrix-free rhs updates them itself)
                 yi.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
             self.timers.add("rk update", time.perf_counter() - t0)
@@ -616,8 +612,7 @@ class Solver:
         t0 = time.perf_counter()
         x.maxpy([dt * bi for bi in b], ks)
         for e, ext in enumerate(self.extensions):
-            z = zs[e] + dt * sum(bi * k for bi, k in zip(b, zk[e]))
-            ext.state = ext.constrain(z)
+            ext.state = ext.advance(zs[e], [(dt * bi, k) for bi, k in zip(b, zk[e]) if bi])
             ext.end_step(x, self.t + dt, dt)
         self.t += dt
         self.step_count += 1

@@ -90,6 +90,10 @@ def print_summary(s: Dict, file=sys.stdout):
         lines.append(f"  contact     max penetration {c['max_penetration']:.3g} m "
                      f"(permitted {c['permitted_penetration_max']:.3g} m), opening clip acted "
                      f"{c['clip_activations']} times (deepest {c['clip_depth_max']:.3g}x the permitted penetration)")
+        if c.get("band_steps_met") is not None:
+            lines.append(f"  contact     delta'_0 = {c['delta0']:.3g}{' (resolved in time)' if c['resolved'] else ''}: "
+                         f"the band spans {c['band_steps_met']:.3g} steps at the fastest closing met "
+                         f"({c['closing_speed_met']:.3g} m/s)")
     if "remeshing" in s:
         r = s["remeshing"]
         lines.append(f"  remeshing   {r['remeshes']} remeshes, {r['wall_s']:.2f} s "

@@ -156,10 +156,20 @@ def transfer_interface(old, new, tol=1e-9):
                 state[:, f, q] = st[:, g, iq]
                 min_open[f, q] = mo[g, iq]
                 found += 1
+    if new.contact.delta0 != old.contact.delta0 and new.facets.size:
+        # a band resolved in time on a mesh with another step: a penetration keeps its place
+        # x = delta / (delta'_0 delta~) in the band (hence eta), not its length; a point at the
+        # old floor (x = 1) is at the new one exactly
+        ds = new.delta_scale[:, None]
+        for a in (state[1], min_open):
+            x = np.minimum(a / (old.contact.delta0 * ds), 1.0)
+            a[...] = np.where(a < 0, x * (new.contact.delta0 * ds), a)
     new.state = state
     new.stage_state = state.copy()
+    new._delta_prev = state[1].copy()
     new.min_opening = min_open
     new.clip_count, new.clip_depth = old.clip_count, old.clip_depth  # (summed over ranks when reported)
+    new.closing_max = old.closing_max
     new.solver.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
     new.evaluate(new.solver.x, new.solver.t, store=True)
     return comm.allreduce(found, op=MPI.SUM)

@@ -81,6 +81,7 @@ class Wellbore:
     regularized : aperture-based pressure factor (eq. 15) or f_p = 1 at connection
     degree, material, p0 (confinement [Pa]), damage, contact, delta_bar (δ̄'), path_friction
     growth : free growth from the perforation tips (:class:`Growth`), or None
+    cfl : the solver's CFL constant (None: its documented stable value; studies of dt take less)
     """
 
     domain: Domain
@@ -97,6 +98,7 @@ class Wellbore:
     delta_bar: float = 0.1
     path_friction: float = 0.6
     growth: Optional[Growth] = None
+    cfl: Optional[float] = None
 
     def __post_init__(self):
         if not isinstance(self.pressure, PiecewiseLinear):
@@ -104,10 +106,22 @@ class Wellbore:
                              f"got {self.pressure!r}")
         if not self.perforations:
             raise ValueError("wellbore: give at least one perforation (the hydraulic source)")
+        if self.contact.delta0 is None and self.contact.closing_speed is None:
+            # a contact band resolved in time (delta0 = None) spans its steps at the fastest
+            # closing the load can drive: faces unloaded from the peak fluid pressure close at
+            # the jump 2 p_max / Z_d
+            object.__setattr__(self, "contact", replace(self.contact, closing_speed=closing_speed(self)))
         object.__setattr__(self, "perforations", tuple(self.perforations))
         object.__setattr__(self, "fractures", tuple(self.fractures))
         object.__setattr__(self, "paths", tuple(np.asarray(p, float) for p in self.paths))
         check_geometry(self.domain, self.perforations, self.fractures, self.paths)
+
+
+def closing_speed(desc: Wellbore) -> float:
+    """The largest closing velocity jump [m/s] the load of ``desc`` can drive: crack faces
+    unloaded from the peak fluid pressure (or from the confinement, if larger) by 2 p / Z_d, the
+    jump a traction change p makes across an interface of equal rock (docs/model.md §4)."""
+    return 2 * max(max(desc.pressure.values), desc.p0) / desc.material.Zd
 
 
 def network_of(desc: Wellbore, paths=None, path_tags=None) -> CrackNetwork:
@@ -135,7 +149,7 @@ def build(desc: Wellbore, comm=MPI.COMM_WORLD, paths=None, path_tags=None, out=N
     cracks = ([Crack(t, friction=0.0, damage=1.0, opening=p.width) for t, p in zip(fm.perforations, desc.perforations)]
               + [Crack(t, friction=f.friction, damage=1.0, tau=f.tau) for t, f in zip(fm.naturals, desc.fractures)]
               + [Crack(t, friction=desc.path_friction, damage=0.0) for t in fm.paths])
-    solver = Solver(fm.mesh, desc.degree, desc.material, facet_tags=fm.facet_tags, sigma0=sigma0,
+    solver = Solver(fm.mesh, desc.degree, desc.material, facet_tags=fm.facet_tags, sigma0=sigma0, cfl=desc.cfl,
                     bcs=[Traction(WELLBORE, pressure=desc.pressure), Absorbing(OUTER, stress=sigma0)],
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks))
     iface = Interface(solver, fm.facet_tags, cracks, damage=desc.damage, contact=desc.contact)

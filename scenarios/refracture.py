@@ -121,8 +121,9 @@ class RefractureMonitor(Monitor):
         fields = iface.fields()
         net = hyd.network[:, None] * iface.weights
         sep = comm.allreduce(float(((fields["mode"] == MODE_SEPARATED) * net).sum()), op=MPI.SUM)
+        closed = comm.allreduce(float(((iface.state[1] <= 0) * net).sum()), op=MPI.SUM)
         tot = comm.allreduce(float(net.sum()), op=MPI.SUM)
-        self.sep_fraction.append((t, sep / max(tot, 1e-300)))
+        self.sep_fraction.append((t, sep / max(tot, 1e-300), closed / max(tot, 1e-300)))
         if t >= self.t_off:
             self.energy_after_off.append((t, problem.solver.energy.balance_error))
         if t >= self.t_on:
@@ -133,7 +134,7 @@ class RefractureMonitor(Monitor):
             self.t_reach[hit] = t
 
     def history(self, problem):
-        t, f = self.sep_fraction[-1] if self.sep_fraction else (0.0, 0.0)
+        t, f = self.sep_fraction[-1][:2] if self.sep_fraction else (0.0, 0.0)
         return {"p_h": problem.hydraulics.params.pressure(problem.t), "separated_fraction": f,
                 "network_length": problem.hydraulics.loaded_length()[1]}
 
@@ -173,6 +174,9 @@ class RefractureMonitor(Monitor):
             "balance_error_growth_after_reload": float(e[-1, 1] - off[-1, 1]) if len(off) and len(e) else 0.0,
             "energy_scale": float(solver.energy.initial + solver.energy.work_in),
             "separated_fraction_before_reload": float(before_on[-1, 1]) if len(before_on) else float("nan"),
+            # closed: the faces at or past contact (delta <= 0, inside the contact band)
+            "closed_fraction_before_reload": (float(before_on[-1, 2]) if len(before_on) and before_on.shape[1] > 2
+                                              else float("nan")),
             "min_opening": -iface.max_penetration(), "opening_floor": floor,
         }
 

@@ -14,19 +14,20 @@ from hydrofrac.solver import CFL_DEFAULT
 DELTA0 = -0.3  # the band |delta'_0| delta~ = 2.4 um, about 2 CFL steps at the closing jump 2 v0
 
 
-def closing(regularized, gap_steps, dt_factor=1.0, nx=40, degree=2, t_end=0.85e-3, delta0=DELTA0):
+def closing(regularized, gap_steps, dt_factor=1.0, nx=40, degree=2, t_end=0.85e-3, delta0=DELTA0, local_flow=True):
     """Two bars closing at +-1 m/s (the two_bars scenario, p = 2, 40 cells), clip off; returns
     (times, mean normal traction, max penetration / permitted)."""
     tb = scenario("two_bars")
     problem = tb.setup(degree=degree, nx=nx, gap_steps=gap_steps, cfl=CFL_DEFAULT["rk4"] * dt_factor,
-                       contact=ContactParams(delta0=delta0, regularized=regularized, clip=False))
+                       contact=ContactParams(delta0=delta0, regularized=regularized, clip=False, closing_speed=2.0,
+                                             local_flow=local_flow))
     solver, iface = problem.solver, problem.interface
     rec = tb.Recorder()
     while solver.t < t_end * (1 - 1e-12):
         solver.step()
         problem.after_step()
         rec(problem)
-    permitted = abs(delta0) * MPI.COMM_WORLD.allreduce(float(iface.delta_scale.max()) if iface.facets.size else 0.0,
+    permitted = abs(iface.contact.delta0) * MPI.COMM_WORLD.allreduce(float(iface.delta_scale.max()) if iface.facets.size else 0.0,
                                                        op=MPI.MAX)
     return np.asarray(rec.t), np.asarray(rec.sn), iface.max_penetration() / permitted
 
@@ -35,12 +36,17 @@ def closing(regularized, gap_steps, dt_factor=1.0, nx=40, degree=2, t_end=0.85e-
 def test_dynamics_alone_hold_the_penetration(gap_steps):
     """Touching bars (the impact) and a gap that shuts in mid-step: with the clip off the
     regularised map with a resolved band keeps the penetration within the permitted one (before:
-    the clip held it at any delta'_0).  The default band (delta'_0 = -0.01, 80 nm, crossed within
-    a step) does not: it penetrates several times its allowance, as the exact map would."""
+    the clip held it at any delta'_0), and so does a band resolved in time.  The default band
+    (delta'_0 = -0.01, 80 nm, crossed within a step) is held by the exact closing flow; through
+    the plain Runge-Kutta sum it penetrates several times its allowance, as the exact map would."""
     _, _, resolved = closing(True, gap_steps)
-    _, _, unresolved = closing(True, gap_steps, delta0=-0.01)
+    _, _, in_time = closing(True, gap_steps, delta0=None)  # resolved in time: 3 steps at 2 v0
+    _, _, narrow = closing(True, gap_steps, delta0=-0.01)  # the default: the exact closing flow
+    _, _, plain = closing(True, gap_steps, delta0=-0.01, local_flow=False)  # the plain RK sum
     assert resolved <= 1 + 1e-9, resolved
-    assert unresolved > 3.0, unresolved
+    assert in_time <= 1 + 1e-9, in_time
+    assert narrow <= 1 + 1e-9, narrow
+    assert plain > 3.0, plain
 
 
 def test_traction_converges_in_dt_at_high_order():

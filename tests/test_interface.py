@@ -21,7 +21,7 @@ from hydrofrac.boundary import Absorbing, PiecewiseLinear, Slider, Symmetry, Tra
 from hydrofrac.interface import ContactParams, Crack, DamageParams, Interface, crack_facet_indices
 from hydrofrac.solver import Solver
 
-from helpers import (CRACK, LEFT, RIGHT, SIDES, check_shear_fracture, check_two_bars, kinked_crack_mesh,
+from helpers import (CRACK, assert_dynamics_hold_penetration, LEFT, RIGHT, SIDES, check_shear_fracture, check_two_bars, kinked_crack_mesh,
                      load_scenario, norm, rhs_parts, strip)
 
 # --------------------------------------------------------------------------------------
@@ -52,8 +52,9 @@ def test_two_bars(run_python, tmp_path):
     """Contact stress -Z_d v0 within 1%, duration 2L/c_d within 2 steps, velocities reversed
     within 0.5%, energy within 1%, penetration never beyond |delta'_0| delta~."""
     run_python(["scenarios/two_bars.py", "--quick", "--out", tmp_path], timeout=300)
-    acc = json.loads((tmp_path / "summary.json").read_text())["accuracy"]
-    check_two_bars(acc)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    check_two_bars(summary["accuracy"])
+    assert_dynamics_hold_penetration(summary)  # the penetration bound is the dynamics', not the clip's
 
 
 # --------------------------------------------------------------------------------------
@@ -73,7 +74,10 @@ def confined_crack(p, tau=3e-6, nx=20, L=0.1):
     solver = Solver(mesh, 1, ROCK, facet_tags=tags, sigma0=SIGMA0,
                     bcs=[Symmetry(SIDES), Traction(LEFT, stress=SIGMA0), Traction(RIGHT, stress=SIGMA0)],
                     crack_facets=crack_facet_indices(mesh, tags, cracks))
-    iface = Interface(solver, tags, cracks, damage=DamageParams(tau=tau))
+    # (the opening clip off: at the floor eta = 1 and d(delta)/dt = 0 by the dynamics; a narrow
+    # band, 80 nm, so that an opening crack leaves it within the test's 67 us)
+    iface = Interface(solver, tags, cracks, damage=DamageParams(tau=tau),
+                      contact=ContactParams(delta0=-0.01, clip=False))
     solver.attach(iface)
     iface.set_separation_law(lambda t: (np.array([-p, 0.0]), None))  # S = (-p, 0)
     return solver, iface
@@ -238,12 +242,15 @@ def test_contact_stable_for_any_max_penetration():
     compressive at every step in contact (no sign change) and within 1% of -Z_d v0 over the
     middle half of the contact (case-9 tolerance; the Gibbs overshoot just after closure
     at this coarse size is 1.5%); the energy never exceeds its initial value; the
-    penetration never exceeds |delta'_0| delta~; and the traction history does not depend on
-    delta'_0 (relative 1e-12)."""
+    penetration never exceeds |delta'_0| delta~.  These bands are crossed within a step: the
+    exact closing flow (Interface.advance) holds the penetration, and the opening clip never
+    acts.  The traction histories converge as the band vanishes, at second order in |delta'_0|
+    (their difference from the narrowest band's falls 100x per decade, measured; the clip made
+    them identical, as delta'_0 did nothing); the default band's is within 0.1% of the limit."""
     comm = MPI.COMM_WORLD
     exact = -ROCK.Zd * 1.0
     histories = []
-    for delta0 in (-1e-1, -1e-2, -1e-3, -1e-4):
+    for delta0 in (-1e-1, -1e-2, -1e-3, -1e-4, -1e-5):
         problem, rec = closing_bars(delta0)
         solver, iface = problem.solver, problem.interface
         assert solver.dt == solver.dt_stable
@@ -271,9 +278,11 @@ def test_contact_stable_for_any_max_penetration():
                                                op=MPI.MAX)
         assert step_motion > 5 * allowed
         assert iface.max_penetration() <= allowed * (1 + 1e-9)
+        assert iface.contact_report()["clip_activations"] == 0  # the exact closing flow held it
         histories.append(sn)
-    for sn in histories[1:]:
-        np.testing.assert_allclose(sn, histories[0], rtol=0, atol=1e-12 * abs(exact))
+    diff = [np.abs(sn - histories[-1]).max() / abs(exact) for sn in histories[:-1]]
+    assert all(d1 < d0 / 30 for d0, d1 in zip(diff, diff[1:])), diff
+    assert diff[1] < 1e-3, diff  # delta'_0 = -0.01
 
 
 # --------------------------------------------------------------------------------------

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import assert_dynamics_hold_penetration
 from PIL import Image
 
 from hydrofrac.postprocess import rundata
@@ -105,6 +106,8 @@ def test_crack_statistics(quick_run, run_python):
     # the permitted value comes from the model parameters, not from the data
     assert s["penetration_ratio_max"][0] == pytest.approx(1.0, rel=1e-9)
     assert np.all(s["penetration_ratio_max"] <= 1 + 1e-9)
+    # ... by the dynamics: the opening clip never acted in the run
+    assert_dynamics_hold_penetration(json.loads((quick_run / "summary.json").read_text()))
 
 
 def test_animation(quick_run, run_python, tmp_path):

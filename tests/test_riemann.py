@@ -301,6 +301,29 @@ def test_eta_full_contact_at_max_penetration():
     assert e_band[0] == 1.0 and e_band[-1] == 0.0 and np.all(np.diff(e_band) < 0)
 
 
+def test_exact_closing_flow_against_integration():
+    """The closed-form flow through the contact band (riemann.closing_flow_pt; docs/model.md §4)
+    against a fine numerical integration of d(delta)/d(xi) = 1 - r(delta') from above the band,
+    at its edge and inside it; any closing increment, however large, ends above the floor
+    -|delta'_0| delta~ (strictly, unless it starts there), and the flow is monotone in it."""
+    band = 8e-8  # |delta'_0| delta~ at the defaults [m]
+
+    def r(d):
+        x = min(max(-d / band, 0.0), 1.0)
+        return x * x * (3 - 2 * x)
+    for d0 in (3e-7, 0.0, -0.2 * band, -0.9 * band, -0.999 * band):
+        for dxi in (-1e-8, -1e-7, -5e-7, -1e-5):
+            ref = solve_ivp(lambda _x, y: [1 - r(y[0])], (0, dxi), [d0], method="DOP853", rtol=1e-12,
+                            atol=1e-22, max_step=band / 50)
+            got = rm.closing_flow(d0, dxi, band)
+            assert got == pytest.approx(ref.y[0, -1], rel=1e-7, abs=1e-9 * band), (d0, dxi)
+    xi = -np.logspace(-12, 2, 200)
+    flow = rm.closing_flow(np.full(xi.size, 1e-7), xi, band)
+    assert np.all(flow > -band) and np.all(np.diff(flow) <= 0)
+    assert rm.closing_flow(-band, -1.0, band) == -band  # at the floor: eta = 1, no motion
+    assert rm.closing_flow(1e-7, -4e-8, band) == pytest.approx(6e-8, rel=1e-12)  # above the band: linear
+
+
 # --------------------------------------------------------------------------------------
 # Case 10: the damage law
 # --------------------------------------------------------------------------------------
