@@ -492,19 +492,21 @@ class Interface:
         self.solver.timers.add("interface kernel", time.perf_counter() - t0)
         return rates
 
-    def advance(self, z0, terms):
-        """The state z0 + sum c k over the Runge-Kutta ``terms`` [(c, rates k)] of a stage or a
-        step, admissible: damage in [D_n, 1]; the opening, where the free opening (the rates'
-        last row, D [[v_S^1]]) closes, by the exact closing flow through the contact band
-        (:func:`hydrofrac.riemann.closing_flow_pt`; ``ContactParams.local_flow``), which never
-        passes the floor delta'_0 delta~ at any step; elsewhere by the Runge-Kutta sum.  The
-        opening clip of :meth:`constrain` stays as a counted safety net."""
+    def advance(self, z0, inc):
+        """The state z0 + inc, ``inc`` being a stage's or a step's Runge-Kutta combination of
+        the rates (None: none), admissible: damage in [D_n, 1]; the opening, where the free
+        opening (the rates' last row, D [[v_S^1]]) closes, by the exact closing flow through
+        the contact band (:func:`hydrofrac.riemann.closing_flow_pt`;
+        ``ContactParams.local_flow``), which never passes the floor delta'_0 delta~ at any step;
+        elsewhere by the Runge-Kutta sum.  The opening clip of :meth:`constrain` stays as a
+        counted safety net."""
         z = z0.copy()
-        for c, k in terms:
-            z += c * k[:3]
+        if inc is None:
+            return self.constrain(z)
+        z += inc[:3]
         c_ = self.contact
-        if c_.regularized and c_.penalty is None and c_.local_flow and z.shape[1] and terms:
-            dxi = sum(c * k[3] for c, k in terms)
+        if c_.regularized and c_.penalty is None and c_.local_flow and z.shape[1]:
+            dxi = inc[3]
             closing = dxi < 0
             if closing.any():
                 band = np.broadcast_to(abs(c_.delta0) * self.delta_scale[:, None], dxi.shape)

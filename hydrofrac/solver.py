@@ -57,13 +57,59 @@ from .material import Material, plane_strain_kappa
 #: the structured meshes for p <= 3 (rk4: 1.275, ssprk3: 1.155), so a run at 1.5 C
 #: blows up and is stopped by :meth:`Solver.check_stability`
 #: (tests/test_bulk.py::test_cfl_*).
-CFL_DEFAULT = {"rk4": 0.85, "ssprk3": 0.77}
+#: The low-storage schemes (tests/cfl_calibration.py, infinite meshes): C_max "right" p = 1..4:
+#: lsrk54 1.845, 1.787, 1.671, 1.531; lsrk144 5.000, 4.687, 4.509, 4.030 ("crossed" higher).
+#: Per operator application (C_max / stages) both beat rk4 (0.234-0.290): lsrk54 by 1.27-1.31x,
+#: lsrk144 by 1.23x.  Their constants keep rk4's ratio to the p = 4 "right" limit (0.909).
+CFL_DEFAULT = {"rk4": 0.85, "ssprk3": 0.77, "lsrk54": 1.39, "lsrk144": 3.66}
 
 #: Butcher tableaux (a, b, c) of the explicit schemes.
 TABLEAUX = {
     "rk4": ([[], [0.5], [0.0, 0.5], [0.0, 0.0, 1.0]], [1 / 6, 1 / 3, 1 / 3, 1 / 6], [0.0, 0.5, 0.5, 1.0]),
     "ssprk3": ([[], [1.0], [0.25, 0.25]], [1 / 6, 1 / 6, 2 / 3], [0.0, 1.0, 0.5]),
 }
+
+#: Low-storage (2N) schemes (Williamson form): per stage s, dQ <- A_s dQ + dt f(Q, t + C_s dt),
+#: Q <- Q + B_s dQ, with two registers whatever the stage count.
+#: lsrk54: Carpenter & Kennedy (1994), NASA TM-109112, the (5,4) 2N solution 3;
+#: lsrk144: Niegemann, Diehl & Busch (2012), J. Comput. Phys. 231, 364, the 14-stage 4th-order
+#: scheme with a stability region optimised for DG wave propagation.
+LOW_STORAGE = {
+    "lsrk54": (
+        (0.0, -567301805773 / 1357537059087, -2404267990393 / 2016746695238, -3550918686646 / 2091501179385,
+         -1275806237668 / 842570457699),
+        (1432997174477 / 9575080441755, 5161836677717 / 13612068292357, 1720146321549 / 2090206949498,
+         3134564353537 / 4481467310338, 2277821191437 / 14882151754819),
+        (0.0, 1432997174477 / 9575080441755, 2526269341429 / 6820363962896, 2006345519317 / 3224310063776,
+         2802321613138 / 2924317926251)),
+    "lsrk144": (
+        (0.0, -0.7188012108672410, -0.7785331173421570, -0.0053282796654044, -0.8552979934029281,
+         -3.9564138245774565, -1.5780575380587385, -2.0837094552574054, -0.7483334182761610,
+         -0.7032861106563359, 0.0013917096117681, -0.0932075369637460, -0.9514200470875948,
+         -7.1151571693922548),
+        (0.0367762454319673, 0.3136296607553959, 0.1531848691869027, 0.0030097086818182, 0.3326293790646110,
+         0.2440251405350864, 0.3718879239592277, 0.6204126221582444, 0.1524043173028741, 0.0760894927419266,
+         0.0077604214040978, 0.0024647284755382, 0.0780348340049386, 5.5059777270269628),
+        (0.0, 0.0367762454319673, 0.1249685262725025, 0.2446177702277698, 0.2476149531070420,
+         0.2969311120382472, 0.3978149645802642, 0.5270854589440328, 0.6981269994175695, 0.8190890835352128,
+         0.8527059887098624, 0.8604711817462826, 0.8627060376969976, 0.8734213127600976)),
+}
+
+
+def num_stages(scheme: str) -> int:
+    """Operator applications per step of ``scheme``."""
+    return len(LOW_STORAGE[scheme][1]) if scheme in LOW_STORAGE else len(TABLEAUX[scheme][1])
+
+
+def _combination(terms):
+    """sum c k over the Runge-Kutta ``terms`` [(c, k)], or None for none."""
+    if not terms:
+        return None
+    out = terms[0][0] * terms[0][1]
+    for c, k in terms[1:]:
+        out += c * k
+    return out
+
 
 BULK_FACET = 1
 MAX_DEGREE = 4
@@ -133,7 +179,8 @@ class Solver:
     sigma0 : initial (and reference) stress, symmetric 2x2 [Pa]
     cfl : CFL constant (default :data:`CFL_DEFAULT`)
     dt : fixed time step; must not exceed the stability limit
-    scheme : "rk4" (default) or "ssprk3"
+    scheme : "rk4" (default), "ssprk3", or a low-storage scheme "lsrk54" / "lsrk144"
+        (:data:`LOW_STORAGE`)
     crack_facets : local facet indices excluded from the bulk upwind flux (crack
         interfaces carry their own flux, :mod:`hydrofrac.interface`)
     relaxation : dynamic-relaxation damping c [1/s] (rho dv/dt = div sigma - c rho v),
@@ -168,8 +215,8 @@ class Solver:
                           f"kernels implement ({', '.join(IMPLEMENTED_FORMS)}): using the operator assembled from "
                           "the edited forms", flush=True)
         self.operator = operator
-        if scheme not in TABLEAUX:
-            raise ValueError(f"scheme must be one of {sorted(TABLEAUX)}; got {scheme!r}")
+        if scheme not in TABLEAUX and scheme not in LOW_STORAGE:
+            raise ValueError(f"scheme must be one of {sorted(TABLEAUX) + sorted(LOW_STORAGE)}; got {scheme!r}")
         self.degree = int(degree)
         self.scheme = scheme
         self.sigma0 = np.asarray(sigma0, dtype=float)
@@ -348,7 +395,7 @@ class Solver:
         self._loads = ([] if self.c0 is None else [(None, _nonzeros(self.c0))]) + [
             (hist, _nonzeros(c)) for hist, c in self.c_hist]
 
-        self._work = [self.x_like() for _ in range(len(TABLEAUX[self.scheme][1]) + 2)]
+        self._work = [self.x_like() for _ in range(2 if self.scheme in LOW_STORAGE else num_stages(self.scheme) + 2)]
         self.account = EnergyAccount(self, ds, free_tag, n)
 
     def _boundary_cells(self):
@@ -501,7 +548,7 @@ class Solver:
 
     @property
     def num_stages(self):
-        return len(TABLEAUX[self.scheme][1])
+        return num_stages(self.scheme)
 
     def state0_array(self):
         """Nodal array (ndofs_local_with_ghosts, 5) of the initial uniform state (v=0, sigma0)."""
@@ -584,6 +631,8 @@ class Solver:
     # ------------------------------------------------------------------ stepping
     def step(self):
         """Advance one time step with the explicit RK scheme (fields and extension states)."""
+        if self.scheme in LOW_STORAGE:
+            return self._step_2n()
         a, b, c = TABLEAUX[self.scheme]
         dt, t, x = self.dt, self.t, self.x
         ks = self._work[: len(b)]
@@ -602,7 +651,8 @@ class Solver:
                 x.copy(y)
                 y.maxpy([c for c, _ in terms], [k for _, k in terms])
             for e, ext in enumerate(self.extensions):
-                ext.stage_state = ext.advance(zs[e], [(dt * aij, zk[e][j]) for j, aij in enumerate(a[i]) if aij])
+                ext.stage_state = ext.advance(zs[e], _combination([(dt * aij, zk[e][j])
+                                                                   for j, aij in enumerate(a[i]) if aij]))
             if self.extensions and self.matfree is None:  # (the matrix-free rhs updates them itself)
                 yi.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
             self.timers.add("rk update", time.perf_counter() - t0)
@@ -612,7 +662,43 @@ class Solver:
         t0 = time.perf_counter()
         x.maxpy([dt * bi for bi in b], ks)
         for e, ext in enumerate(self.extensions):
-            ext.state = ext.advance(zs[e], [(dt * bi, k) for bi, k in zip(b, zk[e]) if bi])
+            ext.state = ext.advance(zs[e], _combination([(dt * bi, k) for bi, k in zip(b, zk[e]) if bi]))
+            ext.end_step(x, self.t + dt, dt)
+        self.t += dt
+        self.step_count += 1
+        self.timers.add("rk update", time.perf_counter() - t0)
+
+    def _step_2n(self):
+        """One step of a low-storage scheme (:data:`LOW_STORAGE`): the fields in place with one
+        extra register; each extension's state from its step-start value and the accumulated
+        increment (``advance``), so that it stays admissible at every stage."""
+        A, B, C = LOW_STORAGE[self.scheme]
+        dt, t, x = self.dt, self.t, self.x
+        dQ, k = self._work[0], self._work[1]
+        zs = [ext.state for ext in self.extensions]
+        zd = [None] * len(self.extensions)  # the extensions' dQ registers
+        inc = [None] * len(self.extensions)  # their accumulated increments Q_s - Q_n
+        for s_ in range(len(B)):
+            t0 = time.perf_counter()
+            if self.extensions and self.matfree is None:
+                x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            self.timers.add("rk update", time.perf_counter() - t0)
+            rates = self.rhs(x, t + C[s_] * dt, k)
+            t0 = time.perf_counter()
+            if s_ == 0:  # (A_1 = 0)
+                k.copy(dQ)
+                dQ.scale(dt)
+            else:
+                dQ.axpby(dt, A[s_], k)  # dQ = A_s dQ + dt k
+            x.axpy(B[s_], dQ)
+            for e, ext in enumerate(self.extensions):
+                zd[e] = dt * rates[e] if s_ == 0 else A[s_] * zd[e] + dt * rates[e]
+                inc[e] = B[s_] * zd[e] if s_ == 0 else inc[e] + B[s_] * zd[e]
+                ext.stage_state = ext.advance(zs[e], inc[e])
+            self.timers.add("rk update", time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        for e, ext in enumerate(self.extensions):
+            ext.state = ext.stage_state
             ext.end_step(x, self.t + dt, dt)
         self.t += dt
         self.step_count += 1

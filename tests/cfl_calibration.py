@@ -25,11 +25,25 @@ import scipy.sparse.linalg as sla
 from mpi4py import MPI
 
 from hydrofrac import ROCK, compat
-from hydrofrac.solver import CFL_DEFAULT, Solver
+from hydrofrac.solver import CFL_DEFAULT, LOW_STORAGE, Solver, num_stages
+
+def low_storage_polynomial(scheme):
+    """R(z) of a 2N scheme (:data:`hydrofrac.solver.LOW_STORAGE`): its stages applied to y' = z y."""
+    A, B, _ = LOW_STORAGE[scheme]
+
+    def R(z):
+        q, dq = np.ones_like(z, dtype=complex), np.zeros_like(z, dtype=complex)
+        for a, b in zip(A, B):
+            dq = a * dq + z * q
+            q = q + b * dq
+        return q
+    return R
+
 
 STABILITY_POLYNOMIAL = {
     "rk4": lambda z: 1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24,
     "ssprk3": lambda z: 1 + z + z ** 2 / 2 + z ** 3 / 6,
+    **{name: low_storage_polynomial(name) for name in LOW_STORAGE},
 }
 
 
@@ -37,7 +51,7 @@ def c_max(lam, scheme, samples=4000):
     """Largest s (to 1/samples of the range) with |R(s' lam)| <= 1 for all s' <= s."""
     R = STABILITY_POLYNOMIAL[scheme]
     lam = lam[np.abs(lam) > 1e-9 * np.abs(lam).max()]
-    s = np.linspace(0, 4.0 / np.abs(lam).max(), samples + 1)[1:]
+    s = np.linspace(0, 12.0 / np.abs(lam).max(), samples + 1)[1:]
     for i, si in enumerate(s):
         if np.abs(R(si * lam)).max() > 1 + 1e-10:
             return s[i - 1] if i else 0.0
@@ -54,7 +68,7 @@ def symbol_eigenvalues(p, diagonal, material=ROCK, ntheta=24):
     """Eigenvalues of the symbol of A on an infinite structured mesh, in units of 1/unit."""
     N = 6
     mesh = compat.create_rectangle(MPI.COMM_SELF, (0, 0), (N, N), N, N, diagonal=diagonal)
-    s = Solver(mesh, p, material)
+    s = Solver(mesh, p, material, operator="assembled")
     A = scipy_operator(s)
     X = compat.dof_coordinates(s.V)[:, :2]
     dofs = compat.cell_dofs(s.V)
@@ -83,7 +97,7 @@ def symbol_eigenvalues(p, diagonal, material=ROCK, ntheta=24):
 
 def mesh_eigenvalues(p, N, diagonal="right"):
     mesh = compat.create_rectangle(MPI.COMM_SELF, (0, 0), (1, 1), N, N, diagonal=diagonal)
-    s = Solver(mesh, p, ROCK)
+    s = Solver(mesh, p, ROCK, operator="assembled")
     A = scipy_operator(s)
     if A.shape[0] <= 5000:
         lam = np.linalg.eigvals(A.toarray())
@@ -100,13 +114,15 @@ def main():
     if not args.quick:
         cases += [(8, "right"), (16, "right")]
     print(f"CFL_DEFAULT = {CFL_DEFAULT}; 1.5 x: { {k: 1.5 * v for k, v in CFL_DEFAULT.items()} }")
-    print(f"{'mesh':>20s}  p  C_max rk4  C_max ssprk3")
+    schemes = list(STABILITY_POLYNOMIAL)
+    print(f"{'mesh':>20s}  p  " + "  ".join(f"C_max {k:>7s}" for k in schemes) + "   (per stage: C_max / stages)")
     for size, diagonal in cases:
         for p in (1, 2, 3, 4):
             lam = (symbol_eigenvalues(p, diagonal, ntheta=12 if args.quick else 24) if size == "infinite"
                    else mesh_eigenvalues(p, size, diagonal))
-            print(f"{str(size) + ' ' + diagonal:>20s}  {p}  {c_max(lam, 'rk4'):9.4f}  {c_max(lam, 'ssprk3'):12.4f}",
-                  flush=True)
+            cm = {k: c_max(lam, k, samples=16000) for k in schemes}
+            print(f"{str(size) + ' ' + diagonal:>20s}  {p}  " + "  ".join(f"{cm[k]:13.4f}" for k in schemes)
+                  + "   (" + ", ".join(f"{k} {cm[k] / num_stages(k):.4f}" for k in schemes) + ")", flush=True)
 
 
 if __name__ == "__main__":
