@@ -110,6 +110,7 @@ bench: setup
 # the speed-against-accuracy studies (CSV + PNG in postprocess/results; ~10 min on 2 cores)
 studies: setup
 	$(PY) -m hydrofrac.postprocess.study_work_precision
+	$(PY) -m hydrofrac.postprocess.study_time_schemes
 	$(PY) -m hydrofrac.postprocess.study_work_precision_cracks
 	$(PY) -m hydrofrac.postprocess.study_contact_stability
 	$(PY) -m hydrofrac.postprocess.study_contact_regularisation
