@@ -62,13 +62,13 @@ def make_mesh(comm, L, nx, ends=False):
 # bars close at the velocity jump 2v₀: with `delta0=None` δ'₀ is resolved so that the band
 # spans 3 steps at that speed (docs/model.md §4).
 def setup(comm=MPI.COMM_WORLD, degree=3, nx=80, L=1.0, v0=1.0, delta0=-0.01, material=ROCK, gap_steps=0.0,
-          contact=None, cfl=None) -> Problem:
+          contact=None, cfl=None, scheme="rk4") -> Problem:
     mesh, tags = make_mesh(comm, L, nx)
     gap = 0.0
     if gap_steps:
         gap = gap_steps * 2 * v0 * Solver(mesh, degree, material, facet_tags=tags, bcs=[Symmetry(SIDES)]).dt
     cracks = [Crack(CRACK, friction=0.0, damage=1.0, opening=gap)]
-    solver = Solver(mesh, degree, material, facet_tags=tags, bcs=[Symmetry(SIDES)], cfl=cfl,
+    solver = Solver(mesh, degree, material, facet_tags=tags, bcs=[Symmetry(SIDES)], cfl=cfl, scheme=scheme,
                     crack_facets=crack_facet_indices(mesh, tags, cracks))
     solver.set_initial_state(lambda x: np.vstack([np.where(x[0] < 0, v0, -v0)] + [0 * x[0]] * 4), by_cell=True)
     h = 2 * L / nx
