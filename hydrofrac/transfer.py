@@ -26,6 +26,7 @@ from petsc4py import PETSc
 from scipy.spatial import cKDTree
 
 from . import compat
+from ._jit import njit
 
 
 def _owned_cells(solver):
@@ -60,6 +61,40 @@ def _locate(tree, x0, Jinv, pts, k, hint=None):
     return cell, Xref, miss
 
 
+@njit
+def _inside_candidates(x0, Jinv, pts, cand, per):
+    """Old cell strictly containing each point (barycentric minimum > 1e-10: the unique one),
+    tried among the candidates ``cand[i // per]`` of its new cell in order, the first that
+    contains it; -1 where none does."""
+    cell = np.full(pts.shape[0], -1, dtype=np.int64)
+    for i in range(pts.shape[0]):
+        row = i // per
+        for j in range(cand.shape[1]):
+            o = cand[row, j]
+            dx, dy = pts[i, 0] - x0[o, 0], pts[i, 1] - x0[o, 1]
+            r0 = Jinv[o, 0, 0] * dx + Jinv[o, 0, 1] * dy
+            r1 = Jinv[o, 1, 0] * dx + Jinv[o, 1, 1] * dy
+            if min(1.0 - r0 - r1, min(r0, r1)) > 1e-10:
+                cell[i] = o
+                break
+    return cell
+
+
+def _locate_by_cell(tree, x0, Jinv, pts, centroids, per, k):
+    """:func:`_locate` for ``per`` points of each new cell: the old cells nearest the new
+    cell's centroid are tried first (one tree query per cell, a compiled pass with an early
+    exit); the points none of them contains strictly, the per-point search decides."""
+    kk = min(k, x0.shape[0])
+    _, cand = tree.query(centroids, k=kk)
+    cell = _inside_candidates(x0, Jinv, pts, np.ascontiguousarray(cand.reshape(centroids.shape[0], kk)), per)
+    miss = 0.0
+    rest = np.flatnonzero(cell < 0)
+    if rest.size:
+        cell[rest], _, miss = _locate(tree, x0, Jinv, pts[rest], k)
+    Xref = np.einsum("nij,nj->ni", Jinv[cell], pts - x0[cell])
+    return cell, Xref, miss
+
+
 def transfer_fields(old, new, method="projection", k=16):
     """Set ``new.x`` from ``old``'s DG fields; returns the largest barycentric miss (0 when
     every evaluation point lies in an old cell).
@@ -89,7 +124,8 @@ def transfer_fields(old, new, method="projection", k=16):
         Xq, wq = triangle_quadrature(2 * new.degree + 4)
         nq = wq.size
         pts = (g.x0[:n_new, None, :] + np.einsum("cij,qj->cqi", g.J[:n_new], Xq)).reshape(-1, 2)
-        cell, Xref, miss = _locate(tree, x0, Jinv, pts, k)
+        cell, Xref, miss = _locate_by_cell(tree, np.ascontiguousarray(x0), np.ascontiguousarray(Jinv), pts,
+                                           g.vertices[:n_new].mean(axis=1), nq, k)
         uq = np.einsum("nj,njk->nk", old.ref.tabulate(Xref), U[cell]).reshape(n_new, nq, 5)
         phi = new.ref.tabulate(Xq)  # (nq, nb): the |det J| of the new cell cancels
         b = np.einsum("q,qj,cqk->cjk", wq, phi, uq)

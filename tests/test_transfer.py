@@ -49,6 +49,35 @@ def test_polynomial_field_moves_exactly(method):
     assert MPI.COMM_WORLD.allreduce(err, op=MPI.MAX) < 1e-12
 
 
+def test_point_location_by_cell_finds_the_containing_cells():
+    """The projection's point location (one tree query per new cell, then a compiled pass over
+    its candidates) returns, for every quadrature point of the new mesh, an old cell that
+    contains it (barycentric minimum >= -1e-12): the per-point search's cell wherever that
+    one contains the point strictly, and a containing cell where the per-point search's 16
+    nearest centroids miss it."""
+    from scipy.spatial import cKDTree
+
+    from hydrofrac.element import triangle_quadrature
+    from hydrofrac.transfer import _locate, _locate_by_cell, _owned_cells
+    if MPI.COMM_WORLD.size > 1:
+        pytest.skip("serial: the candidate search of one rank")
+    old, _ = cracked_plate(0.2, p=2)
+    new, _ = cracked_plate(0.15, p=2)
+    x0, Jinv, cent, _ = _owned_cells(old)
+    x0, Jinv = np.ascontiguousarray(x0), np.ascontiguousarray(Jinv)
+    tree = cKDTree(cent)
+    g, n = new.geometry, compat.num_cells_local(new.mesh)
+    Xq, wq = triangle_quadrature(2 * new.degree + 4)
+    pts = (g.x0[:n, None, :] + np.einsum("cij,qj->cqi", g.J[:n], Xq)).reshape(-1, 2)
+    cell, Xref, miss = _locate_by_cell(tree, x0, Jinv, pts, g.vertices[:n].mean(axis=1), wq.size, 16)
+    ref_cell, _, _ = _locate(tree, x0, Jinv, pts, 16)
+    inside = np.minimum(1 - Xref.sum(axis=1), Xref.min(axis=1))  # barycentric minimum in the chosen cell
+    assert miss == 0.0 and inside.min() >= -1e-12, inside.min()
+    r = np.einsum("nij,nj->ni", Jinv[ref_cell], pts - x0[ref_cell])
+    strict = np.minimum(1 - r.sum(axis=1), r.min(axis=1)) > 1e-10
+    assert np.array_equal(cell[strict], ref_cell[strict])
+
+
 def test_remesh_of_unchanged_geometry_keeps_energy():
     old, _ = cracked_plate(0.05)
     while old.t < 3e-3:
