@@ -412,12 +412,23 @@ def segment_damage(iface, tag, p0, p1):
     return tot[0] / tot[1] if tot[1] else float("nan")
 
 
+def check_interval(solver, check_every):
+    """Steps between criterion checks: ``check_every`` steps of the rk4 step at its documented
+    CFL constant on this mesh, so that the check interval is the same time whatever the scheme
+    and CFL constant (its steps are then fewer or more); exactly ``check_every`` for the
+    default rk4 run.  The tip speeds and the growth events depend on this interval."""
+    from .solver import CFL_DEFAULT
+    rk4_step = CFL_DEFAULT["rk4"] * solver.h_over_c_min / (2 * solver.degree + 1)
+    return max(1, int(round(check_every * rk4_step / solver.dt)))
+
+
 class GrowthDriver:
     """Free crack growth with remeshing, as a ``remesh`` hook of :func:`hydrofrac.run.run`.
 
     ``build((paths, tags)) -> Problem`` meshes the scene with the growth paths (polylines
     (k, 2), one per tip, facet tag ``tags[i]``, bonded D = 0 crack) and builds its
-    :class:`~hydrofrac.problem.Problem`.  Every ``check_every`` steps the driver evaluates the criterion at the tips whose
+    :class:`~hydrofrac.problem.Problem`.  Every ``check_every`` steps (of rk4 at its CFL step:
+    :func:`check_interval`) the driver evaluates the criterion at the tips whose
     last segment has mostly debonded (mean D >= ``ready_damage``, default 0.5: the far end of a
     segment, where the stress is below s̄, may only damage towards D_t < 1); tips where s̆ reaches
     ``threshold`` advance by ``da`` (all of them at once: one remesh per batch), tips leaving
@@ -554,7 +565,7 @@ class GrowthDriver:
     def __call__(self, problem):
         solver = problem.solver
         self.last_criterion_s = 0.0
-        if solver.step_count % self.check_every:
+        if solver.step_count % check_interval(solver, self.check_every):
             return None
         import time as _time
         t_crit = _time.perf_counter()
