@@ -101,14 +101,32 @@ def fracture_points(frac: Fracture):
     return np.array([c - d, c + d])
 
 
-def _segments_cross(p, q, r, s, tol=1e-9):
-    """Proper crossing of segments pq and rs (shared end points do not count, nor an end
-    point within ``tol`` [m] of the other segment's line: a crack that ends on another, or
-    on itself, at a point rounded to 1 nm, e.g. a growth tip that joins it)."""
-    def orient(a, b, c):
-        cross = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
-        return 0.0 if abs(cross) <= tol * np.hypot(b[0] - a[0], b[1] - a[1]) else np.sign(cross)
-    return (orient(p, q, r) * orient(p, q, s) < 0) and (orient(r, s, p) * orient(r, s, q) < 0)
+def _orient_all(a, b, c, tol):
+    """Orientation (-1, 0, 1) of the points c against the lines ab, broadcasting; 0 within
+    ``tol`` [m] of the line."""
+    cross = (b[..., 0] - a[..., 0]) * (c[..., 1] - a[..., 1]) - (b[..., 1] - a[..., 1]) * (c[..., 0] - a[..., 0])
+    return np.where(np.abs(cross) <= tol * np.hypot(b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]), 0.0,
+                    np.sign(cross))
+
+
+def _cross_table(a, b, tol=1e-9):
+    """(crossings, overlaps): (m, n) tables of the segments of polylines ``a`` (m + 1 points) and
+    ``b`` (n + 1 points).  A crossing is proper: shared end points do not count, nor an end
+    point within ``tol`` [m] of the other segment's line (a crack that ends on another, or on
+    itself, at a point rounded to 1 nm, e.g. a growth tip that joins it).  An overlap is a
+    collinear stretch shared by both segments (see :func:`check_no_crossings`)."""
+    p, q = a[:-1, None, :], a[1:, None, :]
+    r, s_ = b[None, :-1, :], b[None, 1:, :]
+    cross = ((_orient_all(p, q, r, tol) * _orient_all(p, q, s_, tol) < 0)
+             & (_orient_all(r, s_, p, tol) * _orient_all(r, s_, q, tol) < 0))
+    d, e = q - p, s_ - r
+    cr = lambda u, v: u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]  # noqa: E731
+    dot = lambda u, v: u[..., 0] * v[..., 0] + u[..., 1] * v[..., 1]  # noqa: E731
+    ld, le = np.linalg.norm(d, axis=-1), np.linalg.norm(e, axis=-1)
+    overlap = ((np.abs(cr(d, e)) <= 1e-12 * ld * le) & (np.abs(cr(d, r - p)) <= 1e-9 * ld)
+               & (np.maximum(dot(r - p, d), dot(s_ - p, d)) > 1e-12)
+               & (np.maximum(dot(r - q, -d), dot(s_ - q, -d)) > 1e-12))
+    return cross, overlap
 
 
 def check_polyline(name, pts, domain: Domain, on_wellbore_start=False):
@@ -136,10 +154,10 @@ def check_polyline(name, pts, domain: Domain, on_wellbore_start=False):
             raise ValueError(f"{name}: enters the wellbore (radius {domain.wellbore_radius} m); move it out")
         if not on_wellbore_start and np.any(np.linalg.norm(pts, axis=1) <= domain.wellbore_radius * (1 + 1e-9)):
             raise ValueError(f"{name}: touches the wellbore wall; only perforations start there")
-    for i in range(len(seg)):
-        for j in range(i + 2, len(seg)):
-            if _segments_cross(pts[i], pts[i + 1], pts[j], pts[j + 1]):
-                raise ValueError(f"{name}: crosses itself (segments {i} and {j}); give a simple polyline")
+    cross, _ = _cross_table(pts, pts)
+    i, j = np.nonzero(np.triu(cross, k=2))  # (a segment and its neighbours share an end)
+    if i.size:
+        raise ValueError(f"{name}: crosses itself (segments {i[0]} and {j[0]}); give a simple polyline")
     return pts
 
 
@@ -153,19 +171,15 @@ def _line_name(tag):
 def check_no_crossings(lines):
     """Raise ValueError (naming both) if two crack lines cross or overlap: a crack may end
     on another (a junction), but Gmsh would split a crossed line and lose its tag."""
-    items = list(lines.items())
+    items = [(t, np.asarray(pts, dtype=float)) for t, pts in lines.items()]
     for i, (ta, a) in enumerate(items):
         for tb, b in items[i + 1:]:
-            for p, q in zip(a[:-1], a[1:]):
-                for r, s_ in zip(b[:-1], b[1:]):
-                    overlap = (abs(np.cross(q - p, s_ - r)) <= 1e-12 * np.linalg.norm(q - p) * np.linalg.norm(s_ - r)
-                               and abs(np.cross(q - p, r - p)) <= 1e-9 * np.linalg.norm(q - p)
-                               and max(np.dot(r - p, q - p), np.dot(s_ - p, q - p)) > 1e-12
-                               and max(np.dot(r - q, p - q), np.dot(s_ - q, p - q)) > 1e-12)
-                    if overlap or _segments_cross(p, q, r, s_):
-                        raise ValueError(f"{_line_name(ta)} and {_line_name(tb)} "
-                                         f"{'overlap' if overlap else 'cross'}; move one of them (cracks may end on "
-                                         "each other, not cross)")
+            cross, overlap = _cross_table(a, b)
+            bad = np.flatnonzero((overlap | cross).ravel())
+            if bad.size:  # (named by the first bad pair of segments)
+                raise ValueError(f"{_line_name(ta)} and {_line_name(tb)} "
+                                 f"{'overlap' if overlap.ravel()[bad[0]] else 'cross'}; move one of them (cracks may "
+                                 "end on each other, not cross)")
 
 
 def check_domain(d: Domain):
