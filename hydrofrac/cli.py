@@ -120,10 +120,21 @@ def delta0_type(text):
     return value
 
 
-def add_growth_arguments(parser):
+def add_pressure_factor_argument(parser, default="connected", why=""):
+    """``--pressure-factor connected|local`` of the wellbore scenarios (docs/model.md, "The
+    pressure factor through connected apertures"); ``why``: the scenario's reason for its
+    default, for the help text."""
+    parser.add_argument("--pressure-factor", choices=("connected", "local"), default=default,
+                        help="'connected': a crack vertex carries no more load than the narrowest opening on the "
+                             "widest path from the wellbore to it allows; 'local': eq. (15) at each vertex alone, "
+                             f"so an open crack end takes the load through a closed part (default {default}{why})")
+
+
+def add_growth_arguments(parser, natural_tips=False, branch_speed=math.inf, nucleation_cap=0):
     """The free-growth options shared by the wellbore scenarios (intersection, re-fracture):
     ``--growth`` (the default) / ``--premeshed`` and the criterion's parameters, in
-    crack-facet sizes h.  (One add_argument per option, each with its own help: the repeated
+    crack-facet sizes h; the network's events default to the scenario's ``natural_tips``,
+    ``branch_speed`` and ``nucleation_cap``.  (One add_argument per option, each with its own help: the repeated
     shape is argparse's, kept on purpose for the readable help texts.)"""
     g = parser.add_mutually_exclusive_group()
     g.add_argument("--growth", dest="growth", action="store_true", default=True,
@@ -150,20 +161,19 @@ def add_growth_arguments(parser):
                              "docs/studies/growth.md)")
     parser.add_argument("--growth-da", type=float, default=2.0,
                         help="length of a growth step, in crack facet sizes h (default 2)")
-    parser.add_argument("--growth-natural-tips", action=argparse.BooleanOptionalAction, default=False,
-                        help="natural fractures grow from their ends too, by the same criterion (default off: "
-                             "the pressure factor then loads their branches ahead of the front, "
-                             "docs/studies/scenarios.md)")
+    parser.add_argument("--growth-natural-tips", action=argparse.BooleanOptionalAction, default=natural_tips,
+                        help="natural fractures grow from their ends too, by the same criterion "
+                             f"(default {'on' if natural_tips else 'off'})")
     parser.add_argument("--growth-max-speed", type=float, default=None,
                         help="largest tip speed [m/s] (default: none; tips then run as fast as the check "
                              "interval lets them, measured up to 3430 m/s > c_R)")
-    parser.add_argument("--growth-branch-speed", type=float, default=math.inf,
+    parser.add_argument("--growth-branch-speed", type=float, default=branch_speed,
                         help="a tip this fast [m/s] whose criterion has two separated maxima above the onset "
-                             f"branches (default inf: no branching in the wellbore scenarios yet; the model's value "
-                             f"is 0.5 c_R = {BRANCH_SPEED:.0f}, docs/model.md §6 and docs/studies/growth.md)")
-    parser.add_argument("--growth-nucleation-cap", type=int, default=0,
+                             f"branches (default {branch_speed:.0f}; inf: no branching; the model's value is "
+                             f"0.5 c_R = {BRANCH_SPEED:.0f}, docs/model.md §6 and docs/studies/growth.md)")
+    parser.add_argument("--growth-nucleation-cap", type=int, default=nucleation_cap,
                         help="at most this many microcracks nucleate where the bulk reaches the strength "
-                             "(default 0: none)")
+                             f"(default {nucleation_cap}; 0: none)")
     parser.add_argument("--growth-max-radius", type=float, default=None,
                         help="tips stop at this distance from the wellbore centre [m] (default: only the outer "
                              "boundary stops them)")

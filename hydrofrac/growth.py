@@ -474,6 +474,7 @@ class GrowthDriver:
         self.count = 0
         self.last_criterion_s = 0.0  # criterion and nucleation time of the last call [s]
         self.events = []  # (t, tip index, angle [deg], s̆ max)
+        self.modes = []  # per event: (mode mixity [deg], the crack carried load), :meth:`_tip_mode`
         self.tree = []  # growth events with parent and child tips (growth.json's "tree")
         self.arrested = {}  # tip index -> (point, unit tangent of the crack it met)
         # Old meshes are kept until the driver goes: freeing a DOLFINx 0.5 mesh (with its
@@ -653,7 +654,16 @@ class GrowthDriver:
     def _extend(self, solver, i, point, theta, smax):
         """Tip ``i`` grows to ``point``; a segment that meets another crack ends on it and the tip
         is arrested there (it may cross later: :meth:`_cross`)."""
-        hit = self._crossing(self.paths[i][-1], point, i)
+        start = np.asarray(self.paths[i][-1], float)
+        hit = self._crossing(start, point, i)
+        if hit is not None and np.linalg.norm(hit[0] - start) < SNAP * self.da:
+            # the crack met is closer than SNAP * da to the tip (a tip that starts on one crack
+            # next to another): the segment would be a sliver (a 0.3 mm one gave a 1000x smaller
+            # step), so the tip stops where it is, arrested for good (it does not cross)
+            self.tips[i].point, self.tips[i].active = start.copy(), False
+            self.tree.append({"event": "arrest", "t": solver.t, "parent": i, "child": None,
+                              "angle_deg": None, "speed": None, "point": start.tolist()})
+            return
         if hit is not None:
             point = np.round(hit[0], 9)
             self.tips[i].point = point
@@ -662,8 +672,32 @@ class GrowthDriver:
             self.arrested[i] = (point.copy(), np.asarray(hit[1], float))
             self.tree.append({"event": "arrest", "t": solver.t, "parent": i, "child": None,
                               "angle_deg": None, "speed": None, "point": point.tolist()})
+        self.modes.append(self._tip_mode(i))
         self.paths[i].append(np.asarray(point, float).copy())
         self.events.append((solver.t, i, float(np.degrees(theta)), smax))
+
+    def _tip_mode(self, i):
+        """(mode mixity [deg], loaded) of tip ``i``'s crack before it extends (collective):
+        the mixity is atan(|Σ w s| / Σ w δ⁺) over the crack's Gauss points within the
+        criterion's distance r behind the tip (slip s and opening δ grow like √r there, as
+        K_II and K_I: 0° pure opening, 90° pure shear, closed and slipping included); loaded:
+        the crack carries hydraulic load anywhere (Σ f_p w > 0).  NaN mixity where the crack
+        has no points yet (a nucleated crack's first segments)."""
+        iface = getattr(self, "iface", None)
+        if iface is None:
+            return (float("nan"), False)
+        tag, tip = self.tags[i], np.asarray(self.paths[i][-1], float)
+        mine = np.repeat(iface.crack_tag == tag, iface.nq)
+        near = mine & (np.linalg.norm(iface.points.reshape(-1, 2) - tip, axis=1) <= (self.params.cod_window
+                                                                                      or self.params.r))
+        w = iface.weights.reshape(-1)
+        hyd = getattr(getattr(self, "problem", None), "hydraulics", None)
+        fp = hyd.fp_q.reshape(-1) if hyd is not None else np.zeros(w.size)
+        tot = iface.solver.comm.allreduce(np.array([w[near] @ np.maximum(iface.state[1].reshape(-1)[near], 0.0),
+                                                    w[near] @ iface.state[2].reshape(-1)[near],
+                                                    float(near.sum()), w[mine] @ fp[mine]]), op=MPI.SUM)
+        mix = float(np.degrees(np.arctan2(abs(tot[1]), tot[0]))) if tot[2] > 0 else float("nan")
+        return (mix, bool(tot[3] > 0))
 
     def far_side_profile(self, solver, i):
         """(theta [rad, relative to the arrested tip's direction], s̆) sampled as for growth,
@@ -768,12 +802,20 @@ class GrowthDriver:
             seen[i], last[i] = seen.get(i, 0) + 1, t
         return out
 
+    def _modes(self):
+        """:attr:`modes`, one per event (NaN, False for events of a checkpoint without them)."""
+        return self.modes + [(float("nan"), False)] * (len(self.events) - len(self.modes))
+
     def counts(self):
-        """Tips (all, active), branches, nucleations, crossings and arrests (tips arrested now)."""
+        """Tips (all, active), branches, nucleations, crossings and arrests (tips arrested now),
+        and the extensions in shear (mode mixity above 45°: slip beyond opening near the tip),
+        of them those of cracks that carried no hydraulic load."""
         ev = [e["event"] for e in self.tree]
+        shear = [ld for m, ld in self._modes() if m > 45.0]
         return {"tips": len(self.tips), "active_tips": sum(t.active for t in self.tips),
                 "branches": ev.count("branch"), "nucleations": ev.count("nucleation"),
-                "crossings": ev.count("crossing"), "arrests": len(self.arrested)}
+                "crossings": ev.count("crossing"), "arrests": len(self.arrested),
+                "shear_extensions": len(shear), "unloaded_shear_extensions": shear.count(False)}
 
     def report(self):
         """What a summary reports of the growth (its ``accuracy``): remeshes, extensions,
@@ -794,6 +836,7 @@ class GrowthDriver:
             "tips": [{"point": np.asarray(t.point).tolist(), "direction": np.asarray(t.direction).tolist(),
                       "active": bool(t.active)} for t in self.tips],
             "events": [list(map(float, e)) for e in self.events],
+            "modes": [[float(m), bool(ld)] for m, ld in self.modes],
             "joined": [[float(t), int(i), np.asarray(p).tolist()] for t, i, p in self.joined],
             "tags": list(map(int, self.tags)),
             "nucleations": [[float(t), np.asarray(c).tolist(), a, float(s_)] for t, c, a, s_ in self.nucleations],
@@ -814,6 +857,7 @@ class GrowthDriver:
         self.tips = [Tip(np.asarray(st["point"]), np.asarray(st["direction"]), st["active"]) for st in d["tips"]]
         self.nucleations = [(t, np.asarray(c), a, s_) for t, c, a, s_ in d.get("nucleations", [])]
         self.events = [(e[0], int(e[1]), e[2], e[3]) for e in d["events"]]
+        self.modes = [(float(m), bool(ld)) for m, ld in d.get("modes", [])]
         self.joined = [(t, i, np.asarray(p)) for t, i, p in d["joined"]]
         self.tree = list(d.get("tree", []))
         self.arrested = {int(i): (np.asarray(p, float), np.asarray(e, float)) for i, p, e in d.get("arrested", [])}
@@ -835,8 +879,9 @@ class GrowthDriver:
         import json
         from pathlib import Path
         data = {"paths": [np.asarray(p).tolist() for p in self.paths],
-                "events": [{"t": t, "tip": i, "angle_deg": a, "s_max": s_, "speed": v}
-                           for (t, i, a, s_), v in zip(self.events, self.tip_speeds())],
+                "events": [{"t": t, "tip": i, "angle_deg": a, "s_max": s_, "speed": v, "mixity_deg": m[0],
+                            "loaded": m[1]}
+                           for (t, i, a, s_), v, m in zip(self.events, self.tip_speeds(), self._modes())],
                 "joined": [{"t": t, "tip": i, "point": np.asarray(p).tolist()} for t, i, p in self.joined],
                 "nucleations": [{"t": t, "centre": np.asarray(c).tolist(), "angle_deg": a, "s_eff": s_}
                                 for t, c, a, s_ in self.nucleations],

@@ -20,6 +20,7 @@ Connectivity and f_p are updated once per time step from the current state
 """
 from __future__ import annotations
 
+import heapq
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -27,6 +28,7 @@ import numpy as np
 from mpi4py import MPI
 
 from . import compat
+from ._jit import njit
 from . import riemann as rm
 from .boundary import PiecewiseLinear
 
@@ -63,10 +65,14 @@ def loaded_facets(edges_vertices, active, source) -> np.ndarray:
     return active & np.isin(roots, src_roots)
 
 
-def pressure_factor_vertices(edges_vertices, loaded, opening_ends, scale):
+def pressure_factor_vertices(edges_vertices, loaded, opening_ends, scale, source=None):
     """f_p per facet end, (m, 2): from the largest opening of the loaded facets at each vertex.
 
     opening_ends : (m, 2) opening at each facet end; scale : delta_bar' * delta~ (per facet, (m,))
+    source : (m,) bool, the source facets; given, the factors are *connected*
+    (:func:`connected_factor`): a facet end carries no more than the narrowest opening on the
+    widest path from a source to it (docs/model.md, "The pressure factor through connected
+    apertures").  None: eq. (15) at each vertex alone.
     """
     m = edges_vertices.shape[0]
     fp = np.zeros((m, 2))
@@ -82,7 +88,69 @@ def pressure_factor_vertices(edges_vertices, loaded, opening_ends, scale):
     at = np.where(uniq[pos] == edges_vertices, vmax[pos], -np.inf)
     fp = np.clip(at / np.asarray(scale)[:, None], 0.0, 1.0)
     fp[~loaded] = 0.0
+    if source is not None:
+        fp = np.minimum(fp, connected_factor(edges_vertices, loaded, fp, source))
     return fp
+
+
+def connected_factor(edges_vertices, loaded, fp_ends, source):
+    """(m, 2): at each end of a loaded facet, the bottleneck of the widest path from a source.
+
+    The loaded facets are the edges of a graph on the crack vertices; a facet's width is the
+    smaller of its two end factors ``fp_ends`` (source facets: 1).  A vertex's value is the
+    largest, over the paths from a source facet's vertex to it, of the narrowest width on the
+    path: Dijkstra's search with max-min in place of the sum (compiled, :func:`_widest_paths`).
+    Unloaded facets: 0."""
+    m = edges_vertices.shape[0]
+    out = np.zeros((m, 2))
+    idx = np.flatnonzero(loaded)
+    if not idx.size:
+        return out
+    uniq, inv = np.unique(np.asarray(edges_vertices)[idx].reshape(-1), return_inverse=True)
+    e = inv.reshape(-1, 2).astype(np.int64)
+    src = np.asarray(source, dtype=bool)[idx]
+    width = np.where(src, 1.0, np.asarray(fp_ends, dtype=float)[idx].min(axis=1))
+    best = _widest_paths(uniq.size, e[:, 0].copy(), e[:, 1].copy(), width,
+                         np.unique(e[src].reshape(-1)).astype(np.int64))
+    out[idx] = best[e]
+    return out
+
+
+@njit
+def _widest_paths(n, a, b, w, src_v):
+    """Bottleneck of the widest path from any of ``src_v`` (value 1) to each of ``n`` vertices
+    over the undirected edges (a, b) of width w; 0 where not connected."""
+    best = np.zeros(n)
+    if src_v.size == 0:
+        return best
+    deg = np.zeros(n + 1, np.int64)
+    for k in range(a.size):
+        deg[a[k] + 1] += 1
+        deg[b[k] + 1] += 1
+    ptr = np.cumsum(deg)
+    fill = ptr[:-1].copy()
+    nbr = np.empty(2 * a.size, np.int64)
+    wid = np.empty(2 * a.size)
+    for k in range(a.size):
+        nbr[fill[a[k]]], wid[fill[a[k]]] = b[k], w[k]
+        fill[a[k]] += 1
+        nbr[fill[b[k]]], wid[fill[b[k]]] = a[k], w[k]
+        fill[b[k]] += 1
+    heap = [(-1.0, src_v[0])]
+    for s in src_v:
+        best[s] = 1.0
+        heapq.heappush(heap, (-1.0, s))
+    while len(heap) > 0:
+        nb, u = heapq.heappop(heap)
+        if -nb < best[u]:
+            continue
+        for k in range(ptr[u], ptr[u + 1]):
+            c = min(best[u], wid[k])
+            v = nbr[k]
+            if c > best[v]:
+                best[v] = c
+                heapq.heappush(heap, (-c, v))
+    return best
 
 
 @dataclass(frozen=True)
@@ -94,6 +162,10 @@ class HydraulicParams:
     delta_bar : regularisation delta_bar' in (0, 1] of the pressure factor (eq. 15)
     regularized : False = f_p = 1 on a loaded component the instant it is connected
     threshold : mean damage at which a facet joins the network
+    connected : True = a facet end's factor is at most the narrowest opening on the widest path
+        from a source to it (the load reaches only what open cracks connect to the wellbore;
+        docs/model.md, "The pressure factor through connected apertures"); False = eq. (15) at
+        each vertex alone
     """
 
     pressure: PiecewiseLinear
@@ -101,6 +173,7 @@ class HydraulicParams:
     delta_bar: float = 0.1
     regularized: bool = True
     threshold: float = 0.99
+    connected: bool = True
 
     def __post_init__(self):
         if not isinstance(self.pressure, PiecewiseLinear):
@@ -166,7 +239,7 @@ class Hydraulics:
         self.network = A[mine]
         self.loaded = loaded[mine]
         if self.params.regularized:
-            fp_ends = pressure_factor_vertices(V, loaded, E, Sc)[mine]
+            fp_ends = pressure_factor_vertices(V, loaded, E, Sc, source=Src if self.params.connected else None)[mine]
             fp_q = fp_ends[:, :1] * (1 - self.s_q) + fp_ends[:, 1:] * self.s_q
             fp_q[self.source] = 1.0
         else:

@@ -42,11 +42,12 @@ class Growth:
     crack-facet sizes h): from the perforation tips and, with ``natural_tips``, from both ends
     of every natural fracture, each by the same criterion once its onset is met.
 
-    ``natural_tips`` is off by default: the regularised pressure factor is local to each
-    vertex, scaled by each crack's own delta~, so a branch grown from a natural fracture's tip
-    (the rock's tau~, a 30x smaller aperture scale) takes the full load as soon as the
-    fracture joins the loaded network, ahead of the load front along the fracture itself
-    (docs/studies/scenarios.md)."""
+    The scenario scripts choose which network events are on (``cli.add_growth_arguments``);
+    this record's defaults are the plain growth of the perforation tips.  Natural-fracture tips
+    need the pressure factor through connected apertures (``Wellbore.connected``): with the
+    factor at each vertex alone, a branch grown from a natural fracture's tip (the rock's tau~,
+    a 30x smaller aperture scale) takes the full load ahead of the front still crossing the
+    fracture (docs/studies/scenarios.md)."""
 
     r: float = 4.0
     beta: float = 0.0
@@ -79,6 +80,8 @@ class Wellbore:
     paths : pre-meshed potential paths (polylines), bonded interfaces (D = 0)
     pressure : p_h(t), the fluid pressure table (required)
     regularized : aperture-based pressure factor (eq. 15) or f_p = 1 at connection
+    connected : the pressure factor through connected apertures (default) or at each vertex alone
+        (:class:`~hydrofrac.hydraulics.HydraulicParams`)
     degree, material, p0 (confinement [Pa]), damage, contact, delta_bar (δ̄'), path_friction
     growth : free growth from the perforation tips (:class:`Growth`), or None
     cfl : the solver's CFL constant (None: its documented stable value; studies of dt take less)
@@ -90,6 +93,7 @@ class Wellbore:
     fractures: Tuple[Fracture, ...] = ()
     paths: Tuple[np.ndarray, ...] = ()
     regularized: bool = True
+    connected: bool = True
     degree: int = 2
     material: Material = ROCK
     p0: float = CONFINEMENT
@@ -154,7 +158,7 @@ def build(desc: Wellbore, comm=MPI.COMM_WORLD, paths=None, path_tags=None, out=N
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks))
     iface = Interface(solver, fm.facet_tags, cracks, damage=desc.damage, contact=desc.contact)
     hyd = HydraulicParams(pressure=desc.pressure, delta_bar=desc.delta_bar, regularized=desc.regularized,
-                          sources=[c.tag for c in network.cracks if c.kind == "perforation"])
+                          connected=desc.connected, sources=[c.tag for c in network.cracks if c.kind == "perforation"])
     return Problem(solver, iface, hyd, network=network, facet_tags=fm.facet_tags)
 
 

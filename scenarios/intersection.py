@@ -43,6 +43,7 @@ from mpi4py import MPI
 
 from hydrofrac import CONFINEMENT, cli, wellbore
 from hydrofrac.boundary import PiecewiseLinear
+from hydrofrac.growth import BRANCH_SPEED
 from hydrofrac.interface import DamageParams
 from hydrofrac.meshes.fractures import Domain, Fracture, Perforation
 from hydrofrac.run import Monitor, RunOptions
@@ -82,13 +83,13 @@ def geometry(x_nf=None, nf_length=1.6, perf_length=0.3, path_length=0.6, quick=F
 
 
 def description(regularized=True, degree=2, quick=False, x_nf=None, tau=30e-6, delta_bar=0.1, nf_tau=1e-3,
-                h_crack=None, h_far=None, growth=None, ramp=RAMP) -> wellbore.Wellbore:
+                h_crack=None, h_far=None, growth=None, ramp=RAMP, connected=True) -> wellbore.Wellbore:
     """The problem as data: ``growth`` (a :class:`hydrofrac.wellbore.Growth`) grows the cracks
     freely; None grows them along the pre-meshed potential paths."""
     dom, perfs, nfs, paths = geometry(x_nf=x_nf, quick=quick, nf_tau=nf_tau, h_crack=h_crack, h_far=h_far)
     return wellbore.Wellbore(dom, perfs, pressure_history(rise=ramp), fractures=nfs, paths=() if growth else paths,
                              regularized=regularized, degree=degree, damage=DamageParams(tau=tau),
-                             delta_bar=delta_bar, growth=growth)
+                             delta_bar=delta_bar, growth=growth, connected=connected)
 
 
 def setup(comm=MPI.COMM_WORLD, record=None, **params):
@@ -103,14 +104,46 @@ def setup(comm=MPI.COMM_WORLD, record=None, **params):
 # rate (normal velocity jump).  The monitor receives the current problem (a remesh
 # replaces it), and its record goes into the checkpoints.
 class IntersectionMonitor(Monitor):
-    checkpointed = ("t_intersection", "rows", "nf_length")
+    checkpointed = ("t_intersection", "rows", "nf_length", "t_end_loaded", "t_branch_loaded")
 
     def __init__(self, nf_tags, name="intersection"):
         self.nf_tags, self.name = list(nf_tags), name
         self.nf_length = None
         self.t_intersection = None
         self.far = 0.25  # m from the junction for the velocity-spike measure
+        self.end_zone = 0.1  # m: the natural fracture's end zones, where its tips' branches start
         self.rows = []
+        # per end of the natural fracture: when the load front along it reaches the end zone
+        # (every facet from the junction to the zone has mean f_p > 0.5), and when a crack grown
+        # from that end first carries load (mean f_p > 0.5 on one of its facets)
+        self.t_end_loaded = [None, None]
+        self.t_branch_loaded = [None, None]
+
+    def _watch_ends(self, problem):
+        """The load at the natural fracture's two ends and on the cracks grown from them."""
+        iface, hyd, comm = problem.interface, problem.hydraulics, problem.comm
+        nfs = [c for c in problem.network.cracks if c.tag in self.nf_tags] if problem.network is not None else []
+        if len(nfs) != 1:
+            return
+        ends = nfs[0].points[[0, -1]]
+        centre = 0.5 * (ends[0] + ends[1])  # the junction lies at the fracture's middle
+        fp = hyd.fp_q.mean(axis=1) if iface.facets.size else np.zeros(0)
+        mid = iface.points.mean(axis=1) if iface.facets.size else np.zeros((0, 2))
+        nf = np.isin(iface.crack_tag, self.nf_tags)
+        for k, end in enumerate(ends):
+            grown = [c.tag for c in problem.network.cracks if c.tag not in self.nf_tags
+                     and np.linalg.norm(c.points[0] - end) < 1e-6]
+            # the front along the fracture has reached the end zone when every facet of this half,
+            # from the junction to the zone, carries load
+            half = nf & ((mid - centre) @ (end - centre) > 0) & (np.linalg.norm(mid - end, axis=1) >= self.end_zone)
+            branch = np.isin(iface.crack_tag, grown)
+            hit = comm.allreduce(np.array([(fp[half] <= 0.5).any(), (fp[branch] > 0.5).any(), half.any()],
+                                          dtype=int), op=MPI.SUM)
+            hit = (hit[0] == 0 and hit[2] > 0, hit[1] > 0)
+            if hit[0] and self.t_end_loaded[k] is None:
+                self.t_end_loaded[k] = problem.t
+            if hit[1] and self.t_branch_loaded[k] is None:
+                self.t_branch_loaded[k] = problem.t
 
     def __call__(self, problem):
         iface, hyd, comm = problem.interface, problem.hydraulics, problem.comm
@@ -134,6 +167,7 @@ class IntersectionMonitor(Monitor):
         lf = comm.allreduce(float((hyd.fp_q[nf] * iface.weights[nf]).sum()), op=MPI.SUM)
         net = comm.allreduce(float((hyd.network[:, None] * iface.weights).sum()), op=MPI.SUM)
         self.rows.append((problem.t, lf, peaks[0], net, peaks[1]))
+        self._watch_ends(problem)
 
     def history(self, problem):
         t, lf, vmax, net, vpart = self.rows[-1] if self.rows else (problem.t, 0.0, 0.0, 0.0, 0.0)
@@ -144,6 +178,11 @@ class IntersectionMonitor(Monitor):
         rows = np.array(self.rows)
         out = {"intersection_time": self.t_intersection if self.t_intersection is not None else float("nan"),
                "nf_length": self.nf_length, "nf_loaded_length_final": float(rows[-1, 1])}
+        nan = float("nan")
+        for k in range(2):
+            out[f"nf_end{k}_loaded_time"] = self.t_end_loaded[k] if self.t_end_loaded[k] is not None else nan
+            out[f"nf_end{k}_branch_loaded_time"] = (self.t_branch_loaded[k] if self.t_branch_loaded[k] is not None
+                                                    else nan)
         if self.t_intersection is not None:
             win = (rows[:, 0] >= self.t_intersection) & (rows[:, 0] <= self.t_intersection + 50e-6)
             out["nf_peak_opening_rate_50us"] = float(rows[win, 2].max())
@@ -213,7 +252,9 @@ def main(argv=None, regularized=None):
                         help="mesh size at the cracks [m] (default 0.03, --quick 0.06; Δa and r scale with it)")
     parser.add_argument("--h-far", type=float, default=None,
                         help="mesh size far from the cracks [m] (default 0.5, --quick 0.8)")
-    cli.add_growth_arguments(parser)
+    cli.add_pressure_factor_argument(parser)
+    # the network evolves (docs/model.md §6): the natural fracture's ends are tips, and fast tips branch
+    cli.add_growth_arguments(parser, natural_tips=True, branch_speed=BRANCH_SPEED)
     # The freely grown crack reaches the natural fracture at ~710 µs (full size; ~780 µs at
     # --quick, Δa = 12 cm) and loads it from 771 µs (996 µs): 1.2 ms shows the load front
     # cross the natural fracture (paper fig. 8-9); --quick's 1.1 ms leaves the 50 µs after
@@ -236,7 +277,7 @@ def main(argv=None, regularized=None):
     if not args.ramp > 0:
         parser.error(f"--ramp must be > 0 s; got {args.ramp}")
     params = dict(regularized=reg, degree=args.degree, quick=args.quick, x_nf=args.x_nf, tau=args.tau,
-                  ramp=args.ramp,
+                  ramp=args.ramp, connected=args.pressure_factor == "connected",
                   nf_tau=args.nf_tau, h_crack=args.h_crack, h_far=args.h_far, growth=wellbore.Growth.from_args(args))
     try:
         description(**params)  # the geometry is checked before anything is meshed

@@ -57,7 +57,7 @@ def geometry(quick=False):
     return dom, perfs, [2.5] * 4, load_history()
 
 
-def description(quick=False, degree=2, tau=30e-6, growth=None) -> wellbore.Wellbore:
+def description(quick=False, degree=2, tau=30e-6, growth=None, connected=False) -> wellbore.Wellbore:
     """The problem as data.  Free growth (``growth``) stops, unless told otherwise, at the
     extent of the pre-meshed paths: without a limit the cracks run to the outer boundary
     while the load is held, and then do not close in the off period
@@ -68,7 +68,7 @@ def description(quick=False, degree=2, tau=30e-6, growth=None) -> wellbore.Wellb
         from dataclasses import replace
         growth = replace(growth, max_radius=dom.wellbore_radius + perfs[0].length + lengths[0])
     return wellbore.Wellbore(dom, perfs, pressure, paths=() if growth else paths, regularized=True, degree=degree,
-                             damage=DamageParams(tau=tau), growth=growth)
+                             damage=DamageParams(tau=tau), growth=growth, connected=connected)
 
 
 def setup(comm=MPI.COMM_WORLD, record=None, **params):
@@ -178,7 +178,33 @@ class RefractureMonitor(Monitor):
             "closed_fraction_before_reload": (float(before_on[-1, 2]) if len(before_on) and before_on.shape[1] > 2
                                               else float("nan")),
             "min_opening": -iface.max_penetration(), "opening_floor": floor,
+            **self.microcracks(problem),
         }
+
+    def microcracks(self, problem):
+        """The nucleated cracks at the end (figs. 12g-i): how many are closed (δ ≤ 0 on at least
+        half their length: in contact), how many carry no hydraulic load, and how many of the
+        closed ones are arrested (no extension since the load returned)."""
+        drv = getattr(problem, "growth", None)
+        if drv is None:
+            return {}
+        iface, hyd, comm = problem.interface, problem.hydraulics, problem.comm
+        cracks = [c["child"] for c in drv.tree if c["event"] == "nucleation"]
+        last = {}
+        for t, i, _, _ in drv.events:
+            last[i] = max(last.get(i, -np.inf), t)
+        closed = unloaded = arrested = 0
+        w = iface.weights
+        for tips in cracks:
+            on = np.isin(iface.crack_tag, [drv.tags[j] for j in tips])
+            tot = comm.allreduce(np.array([w[on].sum(), (w[on] * (iface.state[1][on] <= 0)).sum(),
+                                           (w[on] * hyd.fp_q[on]).sum()]), op=MPI.SUM)
+            is_closed = tot[0] > 0 and tot[1] >= 0.5 * tot[0]
+            closed += is_closed
+            unloaded += tot[0] > 0 and tot[2] == 0
+            arrested += is_closed and max(last.get(j, -np.inf) for j in tips) < self.t_on
+        return {"microcracks": len(cracks), "microcracks_closed_at_end": int(closed),
+                "microcracks_unloaded_at_end": int(unloaded), "microcracks_arrested_closed": int(arrested)}
 
     def report(self, acc):
         return (f"[refracture] separated fraction just before re-loading {acc['separated_fraction_before_reload']:.3f}; "
@@ -195,13 +221,17 @@ def run(problem, options: RunOptions, t_off, t_on):
 def main(argv=None):
     parser = cli.scenario_parser("Re-fracturing under an on/off/on hydraulic load (paper §3.2)")
     parser.add_argument("--tau", type=float, default=30e-6, help="damage relaxation time tau~ [s]")
+    cli.add_pressure_factor_argument(parser, "local", ": with 'connected' a crack beyond a part that closes first "
+                                     "is cut off from the wellbore while the load is off and stays open, "
+                                     "docs/studies/scenarios.md")
     cli.add_growth_arguments(parser)
     histories = [geometry(q)[3] for q in (False, True)]  # (pressure, t_off, t_on, t_end), full and --quick
     args = cli.parse(parser, argv, name="refracture", degree=(2, 1), t_end=tuple(h[3] for h in histories),
                      frames=50)
     cli.check_growth_arguments(parser, args)
     _, t_off, t_on, _ = histories[args.quick]
-    params = dict(quick=args.quick, degree=args.degree, tau=args.tau, growth=wellbore.Growth.from_args(args))
+    params = dict(quick=args.quick, degree=args.degree, tau=args.tau, growth=wellbore.Growth.from_args(args),
+                  connected=args.pressure_factor == "connected")
     desc = description(**params)
     r0 = desc.domain.wellbore_radius + desc.perforations[0].length
     if desc.growth is not None and not desc.growth.max_radius > r0:

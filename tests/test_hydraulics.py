@@ -10,7 +10,8 @@ import pytest
 
 from hydrofrac import ROCK
 from hydrofrac.boundary import PiecewiseLinear
-from hydrofrac.hydraulics import HydraulicParams, components, loaded_facets, pressure_factor_vertices
+from hydrofrac.hydraulics import (HydraulicParams, components, connected_factor, loaded_facets,
+                                  pressure_factor_vertices)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -65,6 +66,60 @@ def test_pressure_factor_uses_all_facets_at_a_vertex():
     # unloaded facets carry no load
     fp = pressure_factor_vertices(E, np.array([1, 0, 0], bool), ends, scale)
     np.testing.assert_allclose(fp[1:], 0.0)
+
+
+def test_pressure_factor_through_connected_apertures():
+    # perforation 0-1 (source), crack 1-2-3-4-5: closed at vertex 2, wide open beyond it (an
+    # outer end that closes last), and a branch 3-6 open too
+    E = _network([[0, 1], [1, 2], [2, 3], [3, 4], [4, 5], [3, 6]])
+    loaded = np.ones(6, bool)
+    source = np.array([1, 0, 0, 0, 0, 0], bool)
+    scale = np.full(6, 1e-6)
+    ends = np.array([[5e-6, 5e-6], [3e-6, -1e-8], [-1e-8, 4e-6], [4e-6, 4e-6], [4e-6, 4e-6], [4e-6, 2e-6]])
+    local = pressure_factor_vertices(E, loaded, ends, scale)
+    conn = pressure_factor_vertices(E, loaded, ends, scale, source=source)
+    # at each vertex alone (eq. 15) the open part beyond the closed vertex takes the full load
+    np.testing.assert_allclose(local[3:], 1.0)
+    # through connected apertures it takes none: no open path joins it to the wellbore
+    np.testing.assert_allclose(conn[1], [1.0, 0.0])
+    np.testing.assert_allclose(conn[2:], 0.0)
+    # half open at vertex 2: everything beyond carries at most half
+    ends[1, 1] = ends[2, 0] = 0.5e-6
+    conn = pressure_factor_vertices(E, loaded, ends, scale, source=source)
+    np.testing.assert_allclose(conn[1], [1.0, 0.5])
+    np.testing.assert_allclose(conn[2:], 0.5)
+    # a second, open route around the closed vertex (1-7-3) restores the load beyond it
+    E2 = np.vstack([E, [[1, 7], [7, 3]]])
+    ends2 = np.vstack([ends, [[4e-6, 4e-6], [4e-6, 4e-6]]])
+    conn = pressure_factor_vertices(E2, np.ones(8, bool), ends2, np.full(8, 1e-6), source=np.r_[source, 0, 0] > 0)
+    np.testing.assert_allclose(conn[3:6], 1.0)
+    np.testing.assert_allclose(conn[1], [1.0, 0.5])  # the closed vertex itself stays as open as it is
+
+
+def test_connected_factor_is_the_widest_path():
+    """Against a brute-force relaxation of max-min paths on random graphs (repeated edges,
+    self-loops, several sources, unloaded facets)."""
+    def brute(E, loaded, fp, source):
+        b = {v: 0.0 for v in np.unique(E[loaded])}
+        for i in np.flatnonzero(loaded & source):
+            b[E[i, 0]] = b[E[i, 1]] = 1.0
+        w = np.where(source, 1.0, fp.min(axis=1))
+        for _ in range(len(b) + 2):
+            for i in np.flatnonzero(loaded):
+                u, v = E[i]
+                b[v], b[u] = max(b[v], min(b[u], w[i])), max(b[u], min(b[v], w[i]))
+        out = np.zeros_like(fp)
+        for i in np.flatnonzero(loaded):
+            out[i] = [b[E[i, 0]], b[E[i, 1]]]
+        return out
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        nv, m = rng.integers(3, 30), rng.integers(2, 50)
+        E = rng.integers(0, nv, size=(m, 2)) * 7 + 3
+        loaded = rng.random(m) < 0.8
+        source = (rng.random(m) < 0.15) & loaded
+        fp = rng.random((m, 2)) * (rng.random((m, 2)) < 0.7)
+        np.testing.assert_allclose(connected_factor(E, loaded, fp, source), brute(E, loaded, fp, source))
 
 
 # --------------------------------------------------------------------------- bad input
@@ -201,6 +256,28 @@ def test_intersection_at_the_papers_time_and_pressure_full_size(tmp_path, run_co
     acc = json.loads((out / "summary.json").read_text())["accuracy"]
     assert acc["intersection_time"] == pytest.approx(800e-6, rel=0.1), acc
     assert acc["p_h_at_intersection"] == pytest.approx(16.0e6, rel=0.1), acc
+
+
+def test_natural_fracture_branches_loaded_only_behind_the_front_full_size(tmp_path, run_command):
+    """Full size, 2 ranks, to 1.35 ms (the scenario's defaults: the natural fracture's ends are
+    tips, the pressure factor goes through connected apertures).  Its ends grow once the
+    crack's stress reaches them; the cracks grown from an end carry load (f_p > 0.5) only
+    once the load front along the fracture has reached that end (within 0.1 m of it):
+    hydraulic load cannot pass a closed part of the network (docs/model.md, "The pressure
+    factor through connected apertures").  With the factor at each vertex alone
+    (``--pressure-factor local``) a branch was loaded 93 µs ahead of the front (measured)."""
+    out = tmp_path / "full"
+    cmd = ["mpirun", "--oversubscribe", "-n", "2", sys.executable, str(ROOT / "scenarios" / "intersection_regularized.py"),
+           "--t-end", "1.35e-3", "--frames", "2", "--out", str(out)]
+    run_command(cmd)
+    acc = json.loads((out / "summary.json").read_text())["accuracy"]
+    g = json.loads((out / "growth.json").read_text())
+    assert {e["tip"] for e in g["events"]} >= {4, 5}, "the natural fracture's ends did not grow"
+    for k in range(2):
+        t_end, t_branch = acc[f"nf_end{k}_loaded_time"], acc[f"nf_end{k}_branch_loaded_time"]
+        print(f"end {k}: end zone loaded at {t_end * 1e6:.1f} µs, its branch at {t_branch * 1e6:.1f} µs")
+        assert np.isfinite(t_end) and np.isfinite(t_branch), acc
+        assert t_branch >= t_end, (k, t_end, t_branch)
 
 
 def test_pressure_factor_spreads_from_the_junction(intersections):
