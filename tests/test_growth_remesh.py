@@ -197,7 +197,7 @@ def test_intersection_free_growth_runs_radially(tmp_path, run_command):
                  "--t-end", "6.5e-4", "--frames", "2", "--ramp", "1e-6", "--x-nf", "1.2",
                  "--out", tmp_path], timeout=600)
     g = json.loads((tmp_path / "growth.json").read_text())
-    for i, path in enumerate(g["paths"]):
+    for i, path in enumerate(g["paths"][:4]):  # the perforation tips (then the natural fracture's ends)
         p = np.array(path)
         assert len(p) >= 6, f"tip {i} grew {len(p) - 1} segments"
         radial = p[0] / np.linalg.norm(p[0])
