@@ -78,11 +78,14 @@ demo: setup
 	@echo "[demo] charts:    $(DEMO_OUT)/figures/charts.png (pressure, energy budget, crack length, contact modes, opening)"
 	@echo "[demo] summary:   $(DEMO_OUT)/summary.json, history: $(DEMO_OUT)/history.csv"
 
+# the README gallery from the full-size runs of the paper's problems on 2 ranks (the
+# re-fracture takes about half an hour here); GALLERY_ARGS="--quick" for the small versions
 GALLERY_RUNS := /tmp/hydrofrac-gallery
+GALLERY_ARGS ?=
 gallery: setup
-	$(PY) scenarios/intersection_regularized.py --quick --frames 120 --out $(GALLERY_RUNS)/reg
-	$(PY) scenarios/intersection_unregularized.py --quick --frames 120 --out $(GALLERY_RUNS)/unreg
-	$(PY) scenarios/refracture.py --quick --frames 120 --out $(GALLERY_RUNS)/refrac
+	$(MPIRUN) -n 2 $(PY) scenarios/intersection_regularized.py $(GALLERY_ARGS) --frames 120 --out $(GALLERY_RUNS)/reg
+	$(MPIRUN) -n 2 $(PY) scenarios/intersection_unregularized.py $(GALLERY_ARGS) --frames 120 --out $(GALLERY_RUNS)/unreg
+	$(MPIRUN) -n 2 $(PY) scenarios/refracture.py $(GALLERY_ARGS) --frames 120 --out $(GALLERY_RUNS)/refrac
 	$(PY) -m hydrofrac.postprocess.gallery --regularized $(GALLERY_RUNS)/reg --unregularized $(GALLERY_RUNS)/unreg \
 	  --refracture $(GALLERY_RUNS)/refrac --out postprocess/gallery
 

@@ -134,7 +134,7 @@ def add_growth_arguments(parser, natural_tips=False, branch_speed=math.inf, nucl
     """The free-growth options shared by the wellbore scenarios (intersection, re-fracture):
     ``--growth`` (the default) / ``--premeshed`` and the criterion's parameters, in
     crack-facet sizes h; the network's events default to the scenario's ``natural_tips``,
-    ``branch_speed`` and ``nucleation_cap``.  (One add_argument per option, each with its own help: the repeated
+    ``branch_speed`` and ``nucleation_cap`` (one value, or (full size, ``--quick``)).  (One add_argument per option, each with its own help: the repeated
     shape is argparse's, kept on purpose for the readable help texts.)"""
     g = parser.add_mutually_exclusive_group()
     g.add_argument("--growth", dest="growth", action="store_true", default=True,
@@ -171,9 +171,12 @@ def add_growth_arguments(parser, natural_tips=False, branch_speed=math.inf, nucl
                         help="a tip this fast [m/s] whose criterion has two separated maxima above the onset "
                              f"branches (default {branch_speed:.0f}; inf: no branching; the model's value is "
                              f"0.5 c_R = {BRANCH_SPEED:.0f}, docs/model.md §6 and docs/studies/growth.md)")
-    parser.add_argument("--growth-nucleation-cap", type=int, default=nucleation_cap,
+    by_size = isinstance(nucleation_cap, tuple)  # (full size, --quick): resolved by resolve_by_size
+    parser.add_argument("--growth-nucleation-cap", type=int, default=None if by_size else nucleation_cap,
                         help="at most this many microcracks nucleate where the bulk reaches the strength "
-                             f"(default {nucleation_cap}; 0: none)")
+                             f"(default {f'{nucleation_cap[0]}, --quick {nucleation_cap[1]}' if by_size else nucleation_cap}"
+                             "; 0: none)")
+    parser.set_defaults(_nucleation_by_size=nucleation_cap if by_size else None)
     parser.add_argument("--growth-max-radius", type=float, default=None,
                         help="tips stop at this distance from the wellbore centre [m] (default: only the outer "
                              "boundary stops them)")
@@ -194,7 +197,11 @@ _GROWTH_CHECKS = (
 
 
 def check_growth_arguments(parser, args):
-    """Reject bad growth options before any meshing (argparse's error: exit 2, with the fix)."""
+    """Reject bad growth options before any meshing (argparse's error: exit 2, with the fix);
+    a default given by size takes the run's size here."""
+    by_size = getattr(args, "_nucleation_by_size", None)
+    if by_size is not None and args.growth_nucleation_cap is None:
+        args.growth_nucleation_cap = by_size[1] if args.quick else by_size[0]
     for name, ok, valid in _GROWTH_CHECKS:
         v = getattr(args, name)
         if v is not None and not ok(v):

@@ -1,8 +1,8 @@
-"""The README gallery: small PNGs of the paper's problems, made from ``--quick`` runs.
+"""The README gallery: small PNGs of the paper's problems, made from their full-size runs.
 
-    python scenarios/intersection_regularized.py --quick --frames 120 --out /tmp/g/reg
-    python scenarios/intersection_unregularized.py --quick --frames 120 --out /tmp/g/unreg
-    python scenarios/refracture.py --quick --frames 120 --out /tmp/g/refrac
+    mpirun -n 2 python scenarios/intersection_regularized.py --frames 120 --out /tmp/g/reg
+    mpirun -n 2 python scenarios/intersection_unregularized.py --frames 120 --out /tmp/g/unreg
+    mpirun -n 2 python scenarios/refracture.py --frames 120 --out /tmp/g/refrac
     python -m hydrofrac.postprocess.gallery --regularized /tmp/g/reg --unregularized /tmp/g/unreg \\
         --refracture /tmp/g/refrac --out postprocess/gallery
 
