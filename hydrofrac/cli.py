@@ -15,6 +15,7 @@ import os
 from pathlib import Path
 
 from .growth import BRANCH_SPEED
+from .material import ROCK
 from .run import RunOptions
 from .solver import MAX_DEGREE
 
@@ -164,9 +165,10 @@ def add_growth_arguments(parser, natural_tips=False, branch_speed=math.inf, nucl
     parser.add_argument("--growth-natural-tips", action=argparse.BooleanOptionalAction, default=natural_tips,
                         help="natural fractures grow from their ends too, by the same criterion "
                              f"(default {'on' if natural_tips else 'off'})")
-    parser.add_argument("--growth-max-speed", type=float, default=None,
-                        help="largest tip speed [m/s] (default: none; tips then run as fast as the check "
-                             "interval lets them, measured up to 3430 m/s > c_R)")
+    parser.add_argument("--growth-max-speed", type=float, default=ROCK.cR,
+                        help=f"largest tip speed [m/s] (default the Rayleigh speed c_R = {ROCK.cR:.0f}, the limit of a "
+                             "tensile crack's speed; inf: none, tips then run as fast as the check interval lets "
+                             "them, measured up to 5900 m/s; docs/studies/growth.md)")
     parser.add_argument("--growth-branch-speed", type=float, default=branch_speed,
                         help="a tip this fast [m/s] whose criterion has two separated maxima above the onset "
                              f"branches (default {branch_speed:.0f}; inf: no branching; the model's value is "
@@ -176,7 +178,7 @@ def add_growth_arguments(parser, natural_tips=False, branch_speed=math.inf, nucl
                         help="at most this many microcracks nucleate where the bulk reaches the strength "
                              f"(default {f'{nucleation_cap[0]}, --quick {nucleation_cap[1]}' if by_size else nucleation_cap}"
                              "; 0: none)")
-    parser.set_defaults(_nucleation_by_size=nucleation_cap if by_size else None)
+    parser.set_defaults(_nucleation_by_size=list(nucleation_cap) if by_size else None)  # a list: as a checkpoint keeps it
     parser.add_argument("--growth-max-radius", type=float, default=None,
                         help="tips stop at this distance from the wellbore centre [m] (default: only the outer "
                              "boundary stops them)")

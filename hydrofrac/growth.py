@@ -350,7 +350,8 @@ def nucleation_site(solver, params: NucleationParams, lines=(), inside=None):
     One vectorised pass over the owned cells: the stress at each cell's centre, s̆ on
     ``n_angles`` planes, the maximum per cell; cells within ``params.exclusion`` of a polyline
     of ``lines`` or outside ``inside`` are skipped.  Ties (a uniform stress) go to the cell
-    nearest the origin, then the smallest x, y: the choice does not depend on the partition."""
+    nearest the origin, then the smallest x, y, and ties between planes (the two conjugate
+    planes of shear) to the first angle: the choice does not depend on the partition."""
     from . import compat
     comm = solver.comm
     nloc = compat.num_cells_local(solver.mesh)
@@ -382,7 +383,9 @@ def nucleation_site(solver, params: NucleationParams, lines=(), inside=None):
         key = np.lexsort((cent[tie, 1], cent[tie, 0], np.round(np.linalg.norm(cent[tie], axis=1), 9)))
         k = tie[key[0]]
         row = seff[k]
-        kk = int(np.argmax(row))  # parabola through the neighbours (periodic in 180°)
+        # the first plane within 1e-9 of the maximum: conjugate shear planes tie exactly, and
+        # argmax would pick between them by round-off, differently on 1 and 2 ranks
+        kk = int(np.flatnonzero(row >= row.max() * (1 - 1e-9))[0])  # parabola through the neighbours (periodic in 180°)
         y0, y1, y2 = row[kk - 1], row[kk], row[(kk + 1) % len(row)]
         den = y0 - 2 * y1 + y2
         phi = ang[kk] + (0.5 * (y0 - y2) / den * (ang[1] - ang[0]) if den < 0 else 0.0)

@@ -8,6 +8,8 @@ growth, the :class:`~hydrofrac.growth.GrowthDriver` that rebuilds it after every
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field, replace
 from typing import Optional, Sequence, Tuple
 
@@ -68,7 +70,8 @@ class Growth:
         return cls(r=args.growth_r, beta=args.growth_beta, direction=args.growth_direction,
                    cod_window=args.growth_cod_window, cod_relax=args.growth_cod_relax, da=args.growth_da,
                    max_radius=args.growth_max_radius, natural_tips=args.growth_natural_tips,
-                   max_speed=args.growth_max_speed, nucleation_cap=args.growth_nucleation_cap,
+                   max_speed=None if math.isinf(args.growth_max_speed) else args.growth_max_speed,
+                   nucleation_cap=args.growth_nucleation_cap,
                    branch_speed=args.growth_branch_speed)
 
 
@@ -206,6 +209,9 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
     return GrowthDriver(rebuild, tips, params, da=g.da * h, threshold=desc.damage.s_onset, nucleation=nucleation,
                         tags=[PATH + k for k in range(len(tips))],
                         domain_size=2 * min(dom.half_width, dom.half_height),
-                        inside=lambda p: abs(p[0]) < mx and abs(p[1]) < my and np.hypot(p[0], p[1]) < rmax,
+                        # tips stop before the outer boundary, at max_radius, and one Δa from the
+                        # wellbore (a segment ending farther than its length from the wall cannot enter it)
+                        inside=lambda p: (abs(p[0]) < mx and abs(p[1]) < my
+                                          and dom.wellbore_radius + g.da * h < np.hypot(p[0], p[1]) < rmax),
                         obstacles=([fracture_points(nf) for nf in desc.fractures]
                                    + [perforation_points(dom, pf) for pf in perfs]), max_speed=g.max_speed)
