@@ -108,3 +108,30 @@ def test_a_crossing_tip_does_not_meet_the_crack_it_starts_on():
     d.tags.append(301)
     q = p + 0.1 * np.array([np.cos(0.3), np.sin(0.3)])
     assert d._crossing(p, q, 1) is None
+
+
+def test_a_tip_next_to_a_crack_stops_instead_of_making_a_sliver():
+    """A tip whose next segment would meet another crack within SNAP * Δa of the tip (a tip that
+    starts on one crack beside another) stops where it is, for good: no segment (a 0.3 mm one
+    cut the full-size re-fracture's step 1000x), no arrest that could cross."""
+    from types import SimpleNamespace as NS
+    da = 0.2
+    d = GrowthDriver(lambda polylines: NS(), [Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0]))],
+                     GrowthParams(r=0.1), da=da, threshold=1.0, tags=[300],
+                     obstacles=[np.array([[0.3, -1.0], [0.3, 1.0]])])
+    start = np.array([0.3 - 0.1 * SNAP * da, 0.0])  # 0.1 SNAP Δa short of the crack at x = 0.3
+    d.paths[0] = [np.array([0.0, 0.0]), start]
+    d.tips[0].point = start.copy()
+    d._extend(NS(t=1e-3), 0, start + np.array([da, 0.0]), 0.0, 2e6)
+    assert len(d.paths[0]) == 2 and not d.tips[0].active and 0 not in d.arrested
+    np.testing.assert_allclose(d.tips[0].point, start)
+    assert d.tree[-1]["event"] == "arrest" and d.events == []
+    # a tip farther away than SNAP * Δa still reaches the crack and is arrested on it (it may cross)
+    start = np.array([0.3 - 2 * SNAP * da, 0.0])
+    d = GrowthDriver(lambda polylines: NS(), [Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0]))],
+                     GrowthParams(r=0.1), da=da, threshold=1.0, tags=[300],
+                     obstacles=[np.array([[0.3, -1.0], [0.3, 1.0]])])
+    d.paths[0] = [np.array([0.0, 0.0]), start]
+    d._extend(NS(t=1e-3), 0, start + np.array([da, 0.0]), 0.0, 2e6)
+    np.testing.assert_allclose(d.paths[0][-1], [0.3, 0.0])
+    assert 0 in d.arrested
