@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
@@ -19,6 +20,30 @@ def study_parser(doc):
     parser.add_argument("--quick", action="store_true", help="fewer and smaller cases (seconds)")
     parser.add_argument("--out", default="postprocess/results")
     return parser
+
+
+def cases(args, quick, full):
+    """(key, N) for every size of a study: ``quick`` with ``--quick``, else ``full``
+    (both ``{key: [N, ...]}``)."""
+    return [(key, N) for key, Ns in (quick if args.quick else full).items() for N in Ns]
+
+
+def say(comm, text):
+    """Print ``[study] text`` on rank 0."""
+    if comm.rank == 0:
+        print(f"[study] {text}", flush=True)
+
+
+def results_dir(comm, args, rows):
+    """On rank 0 the output folder (made), every row tagged with the rank count; None on the
+    other ranks (they write nothing)."""
+    if comm.rank != 0:
+        return None
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for r in rows:
+        r["ranks"] = comm.size
+    return out
 
 
 def timed_run(problem, t_end, monitor=None):

@@ -21,13 +21,13 @@ mesh as dt shrinks (the time error's share).  Writes ``time_schemes.csv`` and
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 from mpi4py import MPI
 
 from hydrofrac.postprocess.baselines.cg_baseline import timed_steps
 from hydrofrac.postprocess.rundata import write_csv
-from hydrofrac.postprocess.study_common import log_axes, plane_wave_solver, save_figure, study_parser, wall_at
+from hydrofrac.postprocess.study_common import (cases, log_axes, plane_wave_solver, results_dir, save_figure, say,
+                                                study_parser, wall_at)
 from hydrofrac.postprocess.study_work_precision import MAT, TRAVEL, dg_error, state
 from hydrofrac.solver import CFL_DEFAULT
 
@@ -85,15 +85,13 @@ def main(argv=None):
     args = study_parser(__doc__).parse_args(argv)
     comm = MPI.COMM_WORLD
     rows = []
-    for p, Ns in (QUICK if args.quick else SIZES).items():
-        for N in Ns:
-            for scheme in SCHEMES:
-                rows.append(run(comm, scheme, p, N))
-                r = rows[-1]
-                if comm.rank == 0:
-                    print(f"[study] {r['method']:12s} N={N:3d} {r['dofs']:7d} DOFs: error {r['rel_error']:.4e}, "
-                          f"{r['applications']:5d} applications, wall {r['wall_s']:.3f} s, "
-                          f"{r['dof_stages_per_s']:.3g} DOF*stages/s", flush=True)
+    for p, N in cases(args, QUICK, SIZES):
+        for scheme in SCHEMES:
+            r = run(comm, scheme, p, N)
+            rows.append(r)
+            say(comm, f"{r['method']:12s} N={N:3d} {r['dofs']:7d} DOFs: error {r['rel_error']:.4e}, "
+                      f"{r['applications']:5d} applications, wall {r['wall_s']:.3f} s, "
+                      f"{r['dof_stages_per_s']:.3g} DOF*stages/s")
     # the time error's share: one mesh, dt from the CFL constant down
     p, N = 3, (8 if args.quick else 16)
     for scheme in SCHEMES:
@@ -101,14 +99,11 @@ def main(argv=None):
             r = run(comm, scheme, p, N, f)
             r["dt_series"] = True
             rows.append(r)
-            if comm.rank == 0:
-                print(f"[study] {scheme:8s} P{p} N={N} dt x {f:4.2f}: error {r['rel_error']:.5e}", flush=True)
-    if comm.rank != 0:
+            say(comm, f"{scheme:8s} P{p} N={N} dt x {f:4.2f}: error {r['rel_error']:.5e}")
+    out = results_dir(comm, args, rows)
+    if out is None:
         return rows
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     for r in rows:
-        r["ranks"] = comm.size
         r.setdefault("dt_series", False)
     write_csv(out / "time_schemes.csv", rows)
     plot(rows, out / "time_schemes.png")

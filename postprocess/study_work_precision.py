@@ -24,7 +24,6 @@ Writes ``work_precision_cg.csv`` and ``work_precision_cg.png`` into ``postproces
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import ufl
@@ -35,7 +34,8 @@ from hydrofrac import ROCK, compat
 from hydrofrac.postprocess.baselines.cg_baseline import CentralDifferenceCG, energy_norm_error, timed_steps
 from hydrofrac.forms import elastodynamics as ef
 from hydrofrac.postprocess.rundata import write_csv
-from hydrofrac.postprocess.study_common import log_axes, plane_wave_solver, save_figure, study_parser, wall_at
+from hydrofrac.postprocess.study_common import (cases, log_axes, plane_wave_solver, results_dir, save_figure, say,
+                                                study_parser, wall_at)
 
 DIRECTION = np.array([math.cos(0.3), math.sin(0.3)])
 WIDTH = 0.12
@@ -134,26 +134,15 @@ def main(argv=None):
     args = study_parser(__doc__).parse_args(argv)
     comm = MPI.COMM_WORLD
     rows = []
-    for p, Ns in (QUICK_DG if args.quick else DG_SIZES).items():
-        for N in Ns:
-            rows.append(run_dg(comm, p, N))
-            if comm.rank == 0:
-                r = rows[-1]
-                print(f"[study] {r['method']} N={N:3d} {r['dofs']:7d} DOFs: error {r['rel_error']:.3e}, "
-                      f"wall {r['wall_s']:.3f} s", flush=True)
-    for (k, mass), Ns in (QUICK_CG if args.quick else CG_SIZES).items():
-        for N in Ns:
-            rows.append(run_cg(comm, k, N, mass))
-            if comm.rank == 0:
-                r = rows[-1]
-                print(f"[study] {r['method']} N={N:3d} {r['dofs']:7d} DOFs: error {r['rel_error']:.3e}, "
-                      f"wall {r['wall_s']:.3f} s", flush=True)
-    if comm.rank != 0:
+    runs = ([(N, lambda p=p, N=N: run_dg(comm, p, N)) for p, N in cases(args, QUICK_DG, DG_SIZES)]
+            + [(N, lambda k=k, m=m, N=N: run_cg(comm, k, N, m)) for (k, m), N in cases(args, QUICK_CG, CG_SIZES)])
+    for N, one in runs:
+        r = one()
+        rows.append(r)
+        say(comm, f"{r['method']} N={N:3d} {r['dofs']:7d} DOFs: error {r['rel_error']:.3e}, wall {r['wall_s']:.3f} s")
+    out = results_dir(comm, args, rows)
+    if out is None:
         return rows
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    for r in rows:
-        r["ranks"] = comm.size
     write_csv(out / "work_precision_cg.csv", rows)
     plot(rows, out / "work_precision_cg.png")
     for target in (1e-2, 1e-3):
