@@ -127,24 +127,25 @@ def test_everything_in_one_go(quick_run, run_python, tmp_path):
     assert (tmp_path / "energy_sequence.png").is_file() and (tmp_path / "mesh_sequence.png").is_file()
 
 
+def pvpython(args, cwd):
+    """Run a pvpython script headless; its stdout."""
+    # xvfb-run -a can lose a race for a display number with a parallel job: one retry
+    for attempt in range(2):
+        res = subprocess.run(["xvfb-run", "-a", "pvpython", *map(str, args)], capture_output=True, text=True,
+                             timeout=300, cwd=cwd)
+        if res.returncode == 0:
+            return res.stdout
+    pytest.fail(f"pvpython {args} exited with {res.returncode}\n{res.stdout[-3000:]}\n{res.stderr[-3000:]}")
+
+
 @pytest.mark.paraview
 @pytest.mark.skipif(shutil.which("pvpython") is None or shutil.which("xvfb-run") is None,
                     reason="needs pvpython and xvfb-run (Debian packages paraview and xvfb; `make setup` "
                            "installs them)")
 def test_paraview_script_and_state(quick_run, repo_root, tmp_path):
     png, state = tmp_path / "shot.png", tmp_path / "run.pvsm"
-
-    def pvpython(args):
-        # xvfb-run -a can lose a race for a display number with a parallel job: one retry
-        for attempt in range(2):
-            res = subprocess.run(["xvfb-run", "-a", "pvpython", *map(str, args)], capture_output=True, text=True,
-                                 timeout=300, cwd=repo_root)
-            if res.returncode == 0:
-                return res.stdout
-        pytest.fail(f"pvpython {args} exited with {res.returncode}\n{res.stdout[-3000:]}\n{res.stderr[-3000:]}")
-
     stdout = pvpython([repo_root / "postprocess" / "paraview" / "open_run.py", quick_run, "--warp", "--size", "400",
-                       "300", "--png", png, "--state", state])
+                       "300", "--png", png, "--state", state], repo_root)
     assert stdout.splitlines()[-1] == "open_run: ok"
     info = json.loads(stdout.splitlines()[-2])
     assert info["frames"] == len(rundata.load_run(quick_run).frames) and info["crack_colour"] == "f_p"
@@ -157,8 +158,48 @@ def test_paraview_script_and_state(quick_run, repo_root, tmp_path):
                       "SaveScreenshot(sys.argv[2], GetActiveViewOrCreate('RenderView'), ImageResolution=[320, 240])\n"
                       "print('state loaded')\n")
     shot = tmp_path / "from_state.png"
-    assert "state loaded" in pvpython([loader, state, shot])
+    assert "state loaded" in pvpython([loader, state, shot], repo_root)
     assert colours(shot, (320, 240)) > 10
+
+
+@pytest.mark.paraview
+@pytest.mark.skipif(shutil.which("pvpython") is None or shutil.which("xvfb-run") is None,
+                    reason="needs pvpython and xvfb-run (Debian packages paraview and xvfb; `make setup` "
+                           "installs them)")
+def test_paraview_script_with_crack_points_outside_the_bulk(quick_run, repo_root, tmp_path):
+    """Crack points the bulk probe misses (a point on the wellbore boundary lost to round-off) stay
+    in the lifted view: no line is blanked, and the bonded and debonded lines together are all the
+    lines of the frame shown, each once (ParaView 5.11's Threshold segfaulted on such input)."""
+    import meshio
+
+    from hydrofrac.io import VTK_LINE, write_vtu
+    run = tmp_path / "run"
+    shutil.copytree(quick_run, run)
+    n_cells = {}
+    for piece in sorted((run / "vtk").glob("*_cracks_*_r0.vtu")):
+        m = meshio.read(piece)
+        points = m.points.copy()
+        points[:, 0] += 0.013  # the perforation points next to the wellbore now lie in it
+        write_vtu(piece, points, m.cells_dict["line"], VTK_LINE, dict(m.point_data),
+                  {k: v[0] for k, v in m.cell_data.items()})
+        n_cells[piece] = len(m.cells_dict["line"])
+    state = tmp_path / "run.pvsm"
+    stdout = pvpython([repo_root / "postprocess" / "paraview" / "open_run.py", run, "--warp", "--size", "320", "240",
+                       "--png", tmp_path / "shot.png", "--state", state], repo_root)
+    assert stdout.splitlines()[-1] == "open_run: ok"
+    # the saved pipeline: the two thresholds together hold every crack cell of the shown frame, unblanked
+    check = tmp_path / "check.py"
+    check.write_text("import sys, json\nfrom paraview.simple import FindSource, LoadState\nfrom paraview import servermanager\n"
+                     "LoadState(sys.argv[1])\nout = {}\nt = float(sys.argv[2])\n"
+                     "for name in ('bonded', 'debonded'):\n"
+                     "    FindSource(name).UpdatePipeline(t)\n"
+                     "    d = servermanager.Fetch(FindSource(name))\n"
+                     "    out[name] = [d.GetNumberOfCells(), int(d.GetPointData().GetArray('vtkGhostType') is not None)]\n"
+                     "print(json.dumps(out))\n")
+    shown_time = json.loads(stdout.splitlines()[-2])["time"]
+    out = json.loads(pvpython([check, state, repr(shown_time)], repo_root).splitlines()[-1])
+    assert out["bonded"][1] == out["debonded"][1] == 0
+    assert out["bonded"][0] + out["debonded"][0] == n_cells[max(n_cells)]
 
 
 # ---------------------------------------------------------------------------- frame choice, history (no VTK)
