@@ -95,6 +95,19 @@ def _locate_by_cell(tree, x0, Jinv, pts, centroids, per, k):
     return cell, Xref, miss
 
 
+@njit
+def _evaluate(T, U, cell):
+    """The old fields at points: sum_j T[n, j] U[cell[n], j, :] (without gathering U[cell])."""
+    out = np.zeros((T.shape[0], U.shape[2]))
+    for n in range(T.shape[0]):
+        c = cell[n]
+        for j in range(T.shape[1]):
+            t = T[n, j]
+            for k in range(U.shape[2]):
+                out[n, k] += t * U[c, j, k]
+    return out
+
+
 def transfer_fields(old, new, method="projection", k=16):
     """Set ``new.x`` from ``old``'s DG fields; returns the largest barycentric miss (0 when
     every evaluation point lies in an old cell).
@@ -119,17 +132,17 @@ def transfer_fields(old, new, method="projection", k=16):
         pts = X[dofs].reshape(-1, 2)
         cc = np.repeat(g.vertices[:n_new].mean(axis=1), dofs.shape[1], axis=0)
         cell, Xref, miss = _locate(tree, x0, Jinv, pts, k, hint=pts + 1e-6 * (cc - pts))
-        vals = np.einsum("nj,njk->nk", old.ref.tabulate(Xref), U[cell])
+        vals = _evaluate(old.ref.tabulate(Xref), np.ascontiguousarray(U), cell)
     else:
         Xq, wq = triangle_quadrature(2 * new.degree + 4)
         nq = wq.size
         pts = (g.x0[:n_new, None, :] + np.einsum("cij,qj->cqi", g.J[:n_new], Xq)).reshape(-1, 2)
         cell, Xref, miss = _locate_by_cell(tree, np.ascontiguousarray(x0), np.ascontiguousarray(Jinv), pts,
                                            g.vertices[:n_new].mean(axis=1), nq, k)
-        uq = np.einsum("nj,njk->nk", old.ref.tabulate(Xref), U[cell]).reshape(n_new, nq, 5)
+        uq = _evaluate(old.ref.tabulate(Xref), np.ascontiguousarray(U), cell).reshape(n_new, nq, 5)
         phi = new.ref.tabulate(Xq)  # (nq, nb): the |det J| of the new cell cancels
-        b = np.einsum("q,qj,cqk->cjk", wq, phi, uq)
-        vals = np.einsum("ij,cjk->cik", new.Mref_inv, b).reshape(-1, 5)
+        b = np.matmul((wq[:, None] * phi).T, uq)  # (c, nb, 5)
+        vals = np.matmul(new.Mref_inv, b).reshape(-1, 5)
     with new.x.localForm() as xl:
         arr = xl.array.reshape(-1, 5)
         arr[dofs.reshape(-1)] = vals
@@ -154,6 +167,46 @@ def continue_run(old, new):
     return before, new.energy.total
 
 
+@njit
+def _match_on_old_facets(va, vb, tags_sorted, order, points, new_tag, s_old, tol):
+    """For each new Gauss point ``points[f, q]``: the old facet of tag ``new_tag[f]`` whose
+    segment holds it (distance <= tol times the longest old facet, arc parameter u in [0, 1]),
+    the nearest if several (the lowest index on a tie), and the old Gauss point nearest in u.
+    ``order`` sorts the old facets by tag (``tags_sorted``).  Returns (old facet, its Gauss
+    point), -1 where the point lies on no old facet of its tag."""
+    nf, nq = points.shape[0], points.shape[1]
+    g_out = np.full((nf, nq), -1, dtype=np.int64)
+    iq_out = np.zeros((nf, nq), dtype=np.int64)
+    L2max = 0.0
+    for i in range(va.shape[0]):
+        L2max = max(L2max, (vb[i, 0] - va[i, 0]) ** 2 + (vb[i, 1] - va[i, 1]) ** 2)
+    reach = tol * np.sqrt(L2max) + 1e-12
+    for f in range(nf):
+        lo = np.searchsorted(tags_sorted, new_tag[f], side="left")
+        hi = np.searchsorted(tags_sorted, new_tag[f], side="right")
+        for q in range(nq):
+            px, py = points[f, q, 0], points[f, q, 1]
+            best, best_d, best_u = -1, np.inf, 0.0
+            for m in range(lo, hi):
+                o = order[m]
+                sx, sy = vb[o, 0] - va[o, 0], vb[o, 1] - va[o, 1]
+                u = ((px - va[o, 0]) * sx + (py - va[o, 1]) * sy) / (sx * sx + sy * sy)
+                if u < -1e-9 or u > 1 + 1e-9:
+                    continue
+                c = min(max(u, 0.0), 1.0)
+                d = np.sqrt((px - va[o, 0] - c * sx) ** 2 + (py - va[o, 1] - c * sy) ** 2)
+                if d <= reach and d < best_d:
+                    best, best_d, best_u = o, d, u
+            if best >= 0:
+                g_out[f, q] = best
+                k = 0
+                for j in range(1, s_old.size):
+                    if abs(s_old[j] - best_u) < abs(s_old[k] - best_u):
+                        k = j
+                iq_out[f, q] = k
+    return g_out, iq_out
+
+
 def transfer_interface(old, new, tol=1e-9):
     """Copy the interface state of ``old`` (an :class:`~hydrofrac.interface.Interface`) onto
     ``new``'s Gauss points by arc length along facets of the same crack tag (see the module
@@ -168,30 +221,17 @@ def transfer_interface(old, new, tol=1e-9):
     mo = np.concatenate([p[4] for p in parts]).reshape(-1, nq_old)
     s_old, _ = np.polynomial.legendre.leggauss(nq_old)
     s_old = 0.5 * (s_old + 1)
-    found = 0
     state, min_open = new.state.copy(), new.min_opening.copy()
+    found = 0
     if new.facets.size and va.shape[0]:
-        seg = vb - va
-        L2 = np.einsum("fi,fi->f", seg, seg)
-        scale = np.sqrt(L2.max())
-        for f in range(new.facets.size):
-            same = np.flatnonzero(tag == new.crack_tag[f])
-            if not same.size:
-                continue
-            for q in range(new.nq):
-                p = new.points[f, q]
-                u = np.einsum("fi,fi->f", p - va[same], seg[same]) / L2[same]
-                foot = va[same] + np.clip(u, 0, 1)[:, None] * seg[same]
-                d = np.linalg.norm(p - foot, axis=1)
-                on = np.flatnonzero((d <= tol * scale + 1e-12) & (u >= -1e-9) & (u <= 1 + 1e-9))
-                if not on.size:
-                    continue
-                j = on[np.argmin(d[on])]
-                g = same[j]
-                iq = int(np.argmin(np.abs(s_old - u[j])))
-                state[:, f, q] = st[:, g, iq]
-                min_open[f, q] = mo[g, iq]
-                found += 1
+        order = np.argsort(tag, kind="stable")  # old facets grouped by tag, in index order within a tag
+        g, iq = _match_on_old_facets(np.ascontiguousarray(va), np.ascontiguousarray(vb), tag[order], order,
+                                     np.ascontiguousarray(new.points, dtype=np.float64),
+                                     np.asarray(new.crack_tag, dtype=tag.dtype), s_old, tol)
+        hit = g >= 0
+        state[:, hit] = st[:, g[hit], iq[hit]]
+        min_open[hit] = mo[g[hit], iq[hit]]
+        found = int(hit.sum())
     if new.contact.delta0 != old.contact.delta0 and new.facets.size:
         # a band resolved in time on a mesh with another step: a penetration keeps its place
         # x = delta / (delta'_0 delta~) in the band (hence eta), not its length; a point at the
