@@ -216,6 +216,7 @@ class Hydraulics:
         self.fp_q = np.zeros((iface.facets.size, iface.nq))
         self.loaded = np.zeros(iface.facets.size, dtype=bool)
         self.network = np.zeros(iface.facets.size, dtype=bool)
+        self._components = None  # (network, sources, loaded) of the last update, all ranks
         self.update()
 
     # ----------------------------------------------------------------- per step
@@ -233,7 +234,14 @@ class Hydraulics:
         Src = np.concatenate([p[2] for p in parts]).astype(bool)
         E = np.concatenate([p[3] for p in parts]).reshape(-1, 2)
         Sc = np.concatenate([p[4] for p in parts])
-        loaded = loaded_facets(V, A, Src)
+        # the components change only when a facet joins or leaves the network: reuse them
+        # otherwise (the gathered arrays are the same on every rank, and so is the choice)
+        cached = self._components
+        if cached is not None and np.array_equal(cached[0], A) and np.array_equal(cached[1], Src):
+            loaded = cached[2]
+        else:
+            loaded = loaded_facets(V, A, Src)
+            self._components = (A, Src, loaded)
         offset = sum(p[0].shape[0] for p in parts[: self.comm.rank])
         mine = slice(offset, offset + iface.facets.size)
         self.network = A[mine]
