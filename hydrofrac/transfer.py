@@ -3,10 +3,10 @@ state.
 
 * **Bulk fields** (v, sigma): L2 projection per new cell (conservative, default) or
   interpolation at the new nodes; see :func:`transfer_fields`.  The old field is evaluated in
-  the old cell that contains each point, with that cell's own polynomial.  The old cells
-  (vertices, coefficients) are gathered to every rank: fine up to the ~1e6 DOFs of a 2D
-  problem (8 MB per million DOFs), and it lets each rank fill its own new cells without
-  further communication.
+  the old cell that contains each point, with that cell's own polynomial.  Each rank receives
+  only the old cells near its new cells (:func:`_exchange_near`: those within the box around
+  them, widened by the largest old cell), then fills its own new cells without further
+  communication.
 * **Interface state** (damage, opening, slip, smallest opening): by arc length along the
   crack polylines.  Each new Gauss point is located on the old facet of the same crack tag
   whose segment contains it, and takes the state of that facet's Gauss point nearest in arc
@@ -38,9 +38,29 @@ def _owned_cells(solver):
     return g.x0[:n], g.Jinv[:n], g.vertices[:n].mean(axis=1), U[dofs]
 
 
-def _gather(comm, arrays):
-    parts = comm.allgather(arrays)
-    return [np.concatenate([p[i] for p in parts]) for i in range(len(arrays))]
+def _exchange_near(comm, old_cells, old_vertices, new_vertices):
+    """The old cells (``old_cells``: arrays of :func:`_owned_cells`, this rank's) that any point
+    of this rank's new cells can lie in, from every rank: each rank sends to each other rank only
+    its old cells whose centroid is within the largest old cell diameter of the box around that
+    rank's new cells (the cell holding a point has its centroid within that distance of it).
+    Every old cell a point can lie in, or be nearest to, is then here; the whole old mesh is
+    not (docs/benchmarks.md, "Remeshing")."""
+    if comm.size == 1:
+        return list(old_cells)
+    x0, Jinv, cent, U = old_cells
+    edges = old_vertices - np.roll(old_vertices, 1, axis=1)
+    pad = comm.allreduce(float(np.sqrt((edges ** 2).sum(axis=2)).max()) if edges.size else 0.0, op=MPI.MAX)
+    box = ((new_vertices.reshape(-1, 2).min(axis=0), new_vertices.reshape(-1, 2).max(axis=0))
+           if new_vertices.size else None)
+    sends = []
+    for b in comm.allgather(box):
+        if b is None:
+            keep = np.zeros(cent.shape[0], dtype=bool)
+        else:
+            keep = np.all((cent >= b[0] - pad) & (cent <= b[1] + pad), axis=1)
+        sends.append(tuple(np.ascontiguousarray(a[keep]) for a in old_cells))
+    parts = comm.alltoall(sends)
+    return [np.concatenate([p[i] for p in parts]) for i in range(4)]
 
 
 def _locate(tree, x0, Jinv, pts, k, hint=None):
@@ -122,7 +142,9 @@ def transfer_fields(old, new, method="projection", k=16):
     if method not in ("projection", "interpolation"):
         raise ValueError(f"transfer method must be 'projection' or 'interpolation'; got {method!r}")
     comm = new.comm
-    x0, Jinv, cent, U = _gather(comm, _owned_cells(old))
+    n_old = compat.num_cells_local(old.mesh)
+    x0, Jinv, cent, U = _exchange_near(comm, _owned_cells(old), old.geometry.vertices[:n_old],
+                                       new.geometry.vertices[:compat.num_cells_local(new.mesh)])
     tree = cKDTree(cent)
     n_new = compat.num_cells_local(new.mesh)
     dofs = compat.cell_dofs(new.V)[:n_new]
