@@ -128,3 +128,31 @@ def test_transfer_parallel():
     """The same checks on 2 ranks (old cells gathered, every rank fills its own new cells)."""
     test_polynomial_field_moves_exactly("projection")
     test_piecewise_constant_interface_state_is_preserved()
+
+
+@pytest.mark.mpi
+def test_each_rank_receives_only_the_old_cells_near_its_new_cells():
+    """On 2 ranks the transfer sends each rank the old cells near its own new cells, not the
+    whole old mesh: fewer than all on each rank here, yet every new quadrature point still lies
+    in a received old cell (the polynomial field moves exactly, as with the whole old mesh)."""
+    from hydrofrac.element import triangle_quadrature
+    from hydrofrac.transfer import _exchange_near, _inside_candidates, _owned_cells
+    comm = MPI.COMM_WORLD
+    old, _ = cracked_plate(0.2, p=2)
+    new, _ = cracked_plate(0.15, p=2)
+    n_old, n_new = compat.num_cells_local(old.mesh), compat.num_cells_local(new.mesh)
+    x0, Jinv, cent, U = _exchange_near(comm, _owned_cells(old), old.geometry.vertices[:n_old],
+                                       new.geometry.vertices[:n_new])
+    total = comm.allreduce(n_old, op=MPI.SUM)
+    if comm.size > 1:
+        assert x0.shape[0] < total
+    # every quadrature point of this rank's new cells lies in a received old cell
+    from scipy.spatial import cKDTree
+
+    from hydrofrac.transfer import _locate
+    Xq, _ = triangle_quadrature(2 * new.degree + 4)
+    g = new.geometry
+    pts = (g.x0[:n_new, None, :] + np.einsum("cij,qj->cqi", g.J[:n_new], Xq)).reshape(-1, 2)
+    _, _, miss = _locate(cKDTree(cent), x0, Jinv, pts, 16)
+    assert miss < 1e-9
+    test_polynomial_field_moves_exactly("projection")
