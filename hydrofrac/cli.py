@@ -182,6 +182,14 @@ def add_growth_arguments(parser, natural_tips=False, branch_speed=math.inf, nucl
     parser.add_argument("--growth-max-radius", type=float, default=None,
                         help="tips stop at this distance from the wellbore centre [m] (default: only the outer "
                              "boundary stops them)")
+    parser.add_argument("--growth-remesh", choices=("full", "patch"), default="full",
+                        help="after an extension, mesh the whole domain again (full, default) or only a patch "
+                             "around the new segments, keeping the rest of the mesh (patch; docs/benchmarks.md, "
+                             "\"Remeshing: local patches\")")
+    parser.add_argument("--growth-patch-radius", type=float, default=6.0,
+                        help="with --growth-remesh patch: the triangles within this distance of a new segment's "
+                             "ends, in facet sizes h, and the too-coarse ones next to them, are meshed again "
+                             "(default 6)")
 
 
 #: the growth options' valid values: (option, test, what a valid value is); None passes
@@ -195,6 +203,7 @@ _GROWTH_CHECKS = (
     ("growth_max_speed", lambda v: v > 0, "> 0 m/s"),
     ("growth_nucleation_cap", lambda v: v >= 0, ">= 0"),
     ("growth_branch_speed", lambda v: v > 0, "> 0 m/s (inf: no branching)"),
+    ("growth_patch_radius", lambda v: v > 0, "> 0 (a distance in facet sizes)"),
 )
 
 

@@ -829,7 +829,17 @@ class GrowthDriver:
                 **self.counts(),
                 "grown_length": sum(float(np.linalg.norm(np.diff(np.array(p), axis=0), axis=1).sum())
                                     for p in self.paths),
-                "tip_speed_max": max(speeds) if speeds else 0.0}
+                "tip_speed_max": max(speeds) if speeds else 0.0,
+                **self.remesh_kinds()}
+
+    def remesh_kinds(self):
+        """With local remeshing: the remeshes made by a patch, those that fell back to the whole
+        domain, and why (empty otherwise)."""
+        kinds = getattr(self.build, "kinds", None)
+        if kinds is None or not getattr(self.build, "local", False):
+            return {}
+        return {"local_remeshes": kinds["patch"], "full_remesh_fallbacks": kinds["full_fallback"],
+                "fallback_reasons": dict(self.build.fallbacks)}
 
     def checkpoint_state(self):
         """The geometry state (JSON text): paths, tips, events, joins, remesh count."""
@@ -845,7 +855,9 @@ class GrowthDriver:
             "nucleations": [[float(t), np.asarray(c).tolist(), a, float(s_)] for t, c, a, s_ in self.nucleations],
             "tree": self.tree,
             "arrested": [[int(i), np.asarray(p).tolist(), np.asarray(e).tolist()] for i, (p, e) in self.arrested.items()],
-            "count": self.count}, default=float)
+            "count": self.count,
+            # a local remesh's mesh, which a full remesh of the same geometry would not give again
+            "mesh": self.build.mesh_state() if hasattr(self.build, "mesh_state") else None}, default=float)
 
     def restore_state(self, text):
         """Set the geometry state from :meth:`checkpoint_state` (no remesh)."""
@@ -871,7 +883,14 @@ class GrowthDriver:
         initial state: the checkpoint's fields are loaded into it next)."""
         self.restore_state(text)
         self._old_meshes.append(self.solver.mesh)
-        self.problem = self._build()
+        import json
+        mesh = json.loads(text).get("mesh")
+        if mesh is not None:
+            self.build.restore_mesh(mesh)
+            self.problem = self.build(self._polylines(), count=False)
+            self.problem.growth = self
+        else:
+            self.problem = self._build()
         return self.problem
 
     def write(self, path=None):

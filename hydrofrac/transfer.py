@@ -30,12 +30,29 @@ from ._jit import njit
 
 
 def _owned_cells(solver):
-    """(x0 (c, 2), Jinv (c, 2, 2), centroid (c, 2), U (c, nb, 5)) of the owned cells."""
+    """(x0 (c, 2), Jinv (c, 2, 2), centroid (c, 2), U (c, nb, 5), vertices (c, 3, 2)) of the
+    owned cells."""
     g = solver.geometry
     n = compat.num_cells_local(solver.mesh)
     U = solver.x.array_r.reshape(-1, 5)
     dofs = compat.cell_dofs(solver.V)[:n]
-    return g.x0[:n], g.Jinv[:n], g.vertices[:n].mean(axis=1), U[dofs]
+    return g.x0[:n], g.Jinv[:n], g.vertices[:n].mean(axis=1), U[dofs], g.vertices[:n]
+
+
+def _cell_keys(vertices):
+    """A key per triangle that two triangles share exactly when they have the same three
+    vertices (bit for bit), in any order: the sorted vertex coordinates as bytes."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    order = np.lexsort((v[:, :, 1], v[:, :, 0]), axis=1)
+    s = np.take_along_axis(v, order[:, :, None], axis=1).reshape(len(v), 6)
+    return [row.tobytes() for row in s]
+
+
+def _same_cells(old_vertices, new_vertices):
+    """(new index, old index) of the new cells that are old cells (the same vertices)."""
+    where = {k: i for i, k in enumerate(_cell_keys(old_vertices))}
+    pairs = [(i, where[k]) for i, k in enumerate(_cell_keys(new_vertices)) if k in where]
+    return (np.array([p[0] for p in pairs], dtype=np.int64), np.array([p[1] for p in pairs], dtype=np.int64))
 
 
 def _exchange_near(comm, old_cells, old_vertices, new_vertices):
@@ -47,7 +64,7 @@ def _exchange_near(comm, old_cells, old_vertices, new_vertices):
     not (docs/benchmarks.md, "Remeshing")."""
     if comm.size == 1:
         return list(old_cells)
-    x0, Jinv, cent, U = old_cells
+    cent = old_cells[2]
     edges = old_vertices - np.roll(old_vertices, 1, axis=1)
     pad = comm.allreduce(float(np.sqrt((edges ** 2).sum(axis=2)).max()) if edges.size else 0.0, op=MPI.MAX)
     box = ((new_vertices.reshape(-1, 2).min(axis=0), new_vertices.reshape(-1, 2).max(axis=0))
@@ -60,7 +77,7 @@ def _exchange_near(comm, old_cells, old_vertices, new_vertices):
             keep = np.all((cent >= b[0] - pad) & (cent <= b[1] + pad), axis=1)
         sends.append(tuple(np.ascontiguousarray(a[keep]) for a in old_cells))
     parts = comm.alltoall(sends)
-    return [np.concatenate([p[i] for p in parts]) for i in range(4)]
+    return [np.concatenate([p[i] for p in parts]) for i in range(len(old_cells))]
 
 
 def _locate(tree, x0, Jinv, pts, k, hint=None):
@@ -137,37 +154,56 @@ def transfer_fields(old, new, method="projection", k=16):
     old field evaluated in the old cell containing each quadrature point); since the cells'
     mass matrices are |det J| M_ref kron B with B constant per cell, this is also the
     projection in the energy inner product, so it never adds energy.  method "interpolation":
-    the old fields at the new nodes.  Both move a polynomial field of degree <= p exactly."""
+    the old fields at the new nodes.  Both move a polynomial field of degree <= p exactly.  A new
+    cell with the same vertices as an old one (outside a local remesh's patch) takes the old
+    cell's values unchanged, bit for bit."""
     from .element import triangle_quadrature
     if method not in ("projection", "interpolation"):
         raise ValueError(f"transfer method must be 'projection' or 'interpolation'; got {method!r}")
     comm = new.comm
     n_old = compat.num_cells_local(old.mesh)
-    x0, Jinv, cent, U = _exchange_near(comm, _owned_cells(old), old.geometry.vertices[:n_old],
-                                       new.geometry.vertices[:compat.num_cells_local(new.mesh)])
+    x0, Jinv, cent, U, V_old = _exchange_near(comm, _owned_cells(old), old.geometry.vertices[:n_old],
+                                              new.geometry.vertices[:compat.num_cells_local(new.mesh)])
     tree = cKDTree(cent)
     n_new = compat.num_cells_local(new.mesh)
     dofs = compat.cell_dofs(new.V)[:n_new]
     g = new.geometry
-    if method == "interpolation":
+    # a new cell that is an old cell (a local remesh keeps the cells outside its patch) takes the
+    # old cell's values as they are: its nodes are the old cell's nodes, possibly in another order
+    same_new, same_old = (_same_cells(V_old, g.vertices[:n_new]) if old.degree == new.degree
+                          else (np.zeros(0, np.int64), np.zeros(0, np.int64)))
+    copied = None
+    if same_new.size:
+        nodes = new.ref.nodes
+        pn = g.x0[same_new, None, :] + np.einsum("cij,nj->cni", g.J[same_new], nodes)
+        J_old = np.linalg.inv(Jinv[same_old])
+        po = x0[same_old, None, :] + np.einsum("cij,nj->cni", J_old, old.ref.nodes)
+        perm = np.argmin(((pn[:, :, None, :] - po[:, None, :, :]) ** 2).sum(axis=3), axis=2)
+        copied = np.take_along_axis(U[same_old], perm[:, :, None], axis=1)  # (c, nb, 5)
+    todo = np.setdiff1d(np.arange(n_new), same_new)  # the cells the transfer computes
+    miss = 0.0
+    vals = np.zeros((0, 5))
+    if todo.size and method == "interpolation":
         X = compat.dof_coordinates(new.V)[:, :2]
-        pts = X[dofs].reshape(-1, 2)
-        cc = np.repeat(g.vertices[:n_new].mean(axis=1), dofs.shape[1], axis=0)
+        pts = X[dofs[todo]].reshape(-1, 2)
+        cc = np.repeat(g.vertices[todo].mean(axis=1), dofs.shape[1], axis=0)
         cell, Xref, miss = _locate(tree, x0, Jinv, pts, k, hint=pts + 1e-6 * (cc - pts))
         vals = _evaluate(old.ref.tabulate(Xref), np.ascontiguousarray(U), cell)
-    else:
+    elif todo.size:
         Xq, wq = triangle_quadrature(2 * new.degree + 4)
         nq = wq.size
-        pts = (g.x0[:n_new, None, :] + np.einsum("cij,qj->cqi", g.J[:n_new], Xq)).reshape(-1, 2)
+        pts = (g.x0[todo, None, :] + np.einsum("cij,qj->cqi", g.J[todo], Xq)).reshape(-1, 2)
         cell, Xref, miss = _locate_by_cell(tree, np.ascontiguousarray(x0), np.ascontiguousarray(Jinv), pts,
-                                           g.vertices[:n_new].mean(axis=1), nq, k)
-        uq = _evaluate(old.ref.tabulate(Xref), np.ascontiguousarray(U), cell).reshape(n_new, nq, 5)
+                                           g.vertices[todo].mean(axis=1), nq, k)
+        uq = _evaluate(old.ref.tabulate(Xref), np.ascontiguousarray(U), cell).reshape(todo.size, nq, 5)
         phi = new.ref.tabulate(Xq)  # (nq, nb): the |det J| of the new cell cancels
         b = np.matmul((wq[:, None] * phi).T, uq)  # (c, nb, 5)
         vals = np.matmul(new.Mref_inv, b).reshape(-1, 5)
     with new.x.localForm() as xl:
         arr = xl.array.reshape(-1, 5)
-        arr[dofs.reshape(-1)] = vals
+        arr[dofs[todo].reshape(-1)] = vals
+        if copied is not None:
+            arr[dofs[same_new].reshape(-1)] = copied.reshape(-1, 5)
     new.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
     return comm.allreduce(miss, op=MPI.MAX)
 

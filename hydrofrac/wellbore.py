@@ -62,6 +62,8 @@ class Growth:
     max_speed: Optional[float] = None
     nucleation_cap: int = 0
     branch_speed: float = float("inf")
+    remesh: str = "full"
+    patch_radius: float = 6.0
 
     @classmethod
     def from_args(cls, args) -> Optional["Growth"]:
@@ -72,7 +74,8 @@ class Growth:
                    max_radius=args.growth_max_radius, natural_tips=args.growth_natural_tips,
                    max_speed=None if math.isinf(args.growth_max_speed) else args.growth_max_speed,
                    nucleation_cap=args.growth_nucleation_cap,
-                   branch_speed=args.growth_branch_speed)
+                   branch_speed=args.growth_branch_speed, remesh=args.growth_remesh,
+                   patch_radius=args.growth_patch_radius)
 
 
 @dataclass(frozen=True)
@@ -146,12 +149,16 @@ def network_of(desc: Wellbore, paths=None, path_tags=None) -> CrackNetwork:
     return CrackNetwork.from_cracks(cracks, desc.domain.wellbore_radius, growing=growing)
 
 
-def build(desc: Wellbore, comm=MPI.COMM_WORLD, paths=None, path_tags=None, out=None) -> Problem:
+def build(desc: Wellbore, comm=MPI.COMM_WORLD, paths=None, path_tags=None, out=None, previous=None,
+          patch_radius=None) -> Problem:
     """Mesh, solver, interface, hydraulics and network of ``desc`` (with ``paths``/``path_tags``
     in place of the description's paths: the grown ones).  The network is made first; the
-    hydraulic sources are its perforations."""
+    hydraulic sources are its perforations.  ``previous`` (the last problem's
+    ``problem.fracture_mesh``) and ``patch_radius`` [m]: remesh only a patch around the new
+    segments (:func:`hydrofrac.meshes.fractures.fracture_mesh`)."""
     network = network_of(desc, paths, path_tags)
-    fm = fracture_mesh(comm, desc.domain, network=network, out=out)  # Gmsh meshes the network's lines
+    # Gmsh meshes the network's lines (or a patch of the previous mesh around the new ones)
+    fm = fracture_mesh(comm, desc.domain, network=network, out=out, previous=previous, patch_radius=patch_radius)
     sigma0 = -desc.p0 * np.eye(2)
     cracks = ([Crack(t, friction=0.0, damage=1.0, opening=p.width) for t, p in zip(fm.perforations, desc.perforations)]
               + [Crack(t, friction=f.friction, damage=1.0, tau=f.tau) for t, f in zip(fm.naturals, desc.fractures)]
@@ -162,7 +169,9 @@ def build(desc: Wellbore, comm=MPI.COMM_WORLD, paths=None, path_tags=None, out=N
     iface = Interface(solver, fm.facet_tags, cracks, damage=desc.damage, contact=desc.contact)
     hyd = HydraulicParams(pressure=desc.pressure, delta_bar=desc.delta_bar, regularized=desc.regularized,
                           connected=desc.connected, sources=[c.tag for c in network.cracks if c.kind == "perforation"])
-    return Problem(solver, iface, hyd, network=network, facet_tags=fm.facet_tags)
+    problem = Problem(solver, iface, hyd, network=network, facet_tags=fm.facet_tags)
+    problem.fracture_mesh = fm
+    return problem
 
 
 def setup(desc: Wellbore, comm=MPI.COMM_WORLD, record=None):
@@ -197,9 +206,51 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
                           branch_speed=None if np.isinf(g.branch_speed) else g.branch_speed)
     premeshed = replace(desc, paths=())
 
-    def rebuild(polylines):
+    last = {}  # the last problem's mesh, for a local remesh
+
+    def rebuild(polylines, count=True):
         paths, tags = polylines
-        return build(premeshed, comm, paths=paths, path_tags=tags)
+        local = g.remesh == "patch" and "fm" in last
+        problem = build(premeshed, comm, paths=paths, path_tags=tags, previous=last["fm"] if local else None,
+                        patch_radius=g.patch_radius * h if local else None)
+        last["fm"] = problem.fracture_mesh
+        if local and count:
+            fm = problem.fracture_mesh
+            rebuild.kinds["patch" if fm.remesh == "patch" else "full_fallback"] += 1
+            if fm.fallback:
+                rebuild.fallbacks[fm.fallback] = rebuild.fallbacks.get(fm.fallback, 0) + 1
+        return problem
+
+    def mesh_state():
+        """What a restart needs to make the same mesh again: the mesh arrays (rank 0) and the
+        counts; None unless the remesh is local."""
+        if g.remesh != "patch":
+            return None
+        a = getattr(last.get("fm"), "arrays", None)
+        arrays = None if a is None else {"nodes": a.nodes.tolist(), "tris": a.tris.tolist(),
+                                         "lines": {str(k): v.tolist() for k, v in a.lines.items()},
+                                         "polylines": {str(k): v.tolist() for k, v in a.polylines.items()}}
+        return {"arrays": arrays, "kinds": dict(rebuild.kinds), "fallbacks": dict(rebuild.fallbacks)}
+
+    def restore_mesh(state):
+        """Before a restart's build: the checkpoint's mesh is the previous one, with no new
+        segment, so the build makes it again exactly (:func:`hydrofrac.meshes.patch.patch_arrays`)."""
+        from types import SimpleNamespace
+
+        from .meshes.patch import MeshArrays
+        a = state["arrays"]
+        arrays = None if a is None else MeshArrays(
+            np.asarray(a["nodes"], float), np.asarray(a["tris"], np.int64),
+            {int(k): np.asarray(v, np.int64).reshape(-1, 2) for k, v in a["lines"].items()},
+            {int(k): np.asarray(v, float) for k, v in a["polylines"].items()})
+        last["fm"] = SimpleNamespace(arrays=arrays)
+        rebuild.kinds.update(state["kinds"])
+        rebuild.fallbacks.update(state["fallbacks"])
+
+    rebuild.kinds = {"patch": 0, "full_fallback": 0}
+    rebuild.fallbacks = {}
+    rebuild.mesh_state, rebuild.restore_mesh = mesh_state, restore_mesh
+    rebuild.local = g.remesh == "patch"
 
     from .growth import NucleationParams
     # microcracks (nucleation_cap > 0): where the bulk reaches the strength, a crack of Δa, at

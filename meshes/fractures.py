@@ -26,7 +26,7 @@ from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .gmsh_util import build_mesh
+from .gmsh_util import build_mesh, mesh_from_arrays
 
 ROCK = 1
 WELLBORE = 1
@@ -85,6 +85,13 @@ class FractureMesh:
     naturals: List[int] = field(default_factory=list)
     paths: List[int] = field(default_factory=list)
     lines: dict = field(default_factory=dict)  # tag -> (points (k, 2))
+    #: the mesh as arrays on rank 0 (None elsewhere), for a later local remesh
+    arrays: object = None
+    #: how it was made: "full" (Gmsh over the whole domain) or "patch" (meshes/patch.py), the
+    #: patch's old triangles, and why a local remesh that was asked for fell back to "full"
+    remesh: str = "full"
+    patch_cells: int = 0
+    fallback: Optional[str] = None
 
 
 def perforation_points(domain: Domain, perf: Perforation):
@@ -224,7 +231,8 @@ def check_geometry(domain: Domain, perforations: Sequence[Perforation] = (), fra
 
 def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perforation] = (),
                   fractures: Sequence[Fracture] = (), paths: Sequence[np.ndarray] = (),
-                  out=None, verbose=False, path_tags: Optional[Sequence[int]] = None, network=None) -> FractureMesh:
+                  out=None, verbose=False, path_tags: Optional[Sequence[int]] = None, network=None,
+                  previous: Optional[FractureMesh] = None, patch_radius: Optional[float] = None) -> FractureMesh:
     """Mesh a box with a wellbore, perforations, natural fractures and potential paths.
 
     ``paths`` are polylines (k, 2); every line is validated before Gmsh runs.  ``path_tags``
@@ -232,6 +240,11 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
     their tags from one remesh to the next.  ``network`` (a
     :class:`hydrofrac.network.CrackNetwork`, validated already) gives the crack lines
     instead of the perforations, fractures and paths.
+
+    ``previous`` (the mesh of the same domain made before, with ``patch_radius`` [m]): remesh
+    only the triangles within ``patch_radius`` of the new crack segments' ends and keep the
+    rest of ``previous`` as it is (:mod:`hydrofrac.meshes.patch`); where that cannot be done,
+    mesh the whole domain and say why in ``fallback``.
     """
     if network is not None:
         lines = {c.tag: c.points for c in network.cracks}
@@ -324,9 +337,40 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
         gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
         gmsh.option.setNumber("Mesh.Algorithm", 6)
 
-    mesh, ct, ft = build_mesh(comm, build, name="fractures", out=out, verbose=verbose)
-    return FractureMesh(mesh, ct, ft, perforations=perf_tags, naturals=nat_tags, paths=list(path_tags),
-                        lines=lines)
+    tags = dict(perforations=perf_tags, naturals=nat_tags, paths=list(path_tags), lines=lines)
+    fallback = None
+    if previous is not None:
+        from . import patch
+        if patch_radius is None or not patch_radius > 0:
+            raise ValueError(f"a local remesh needs patch_radius > 0; got {patch_radius}")
+        merged, n_patch, why = None, 0, None
+        if comm.rank == 0:
+            law = patch.SizeLaw(domain.h_crack, domain.h_far, domain.grading, domain.wellbore_radius,
+                                domain.h_tip, domain.tip_radius)
+            import gmsh
+            started = not getattr(gmsh, "isInitialized", lambda: False)()
+            if started:
+                gmsh.initialize()
+            gmsh.option.setNumber("General.Terminal", 0)
+            try:
+                merged, n_patch, why = patch.patch_arrays(gmsh, previous.arrays, lines, patch_radius, law, tips,
+                                                          crack_tags=set(lines))
+            finally:
+                if started:
+                    gmsh.finalize()
+        n_patch, why = comm.bcast((n_patch, why), root=0)
+        if why is None:
+            mesh, ct, ft = mesh_from_arrays(comm, lambda g: patch.discrete_model(g, merged, ROCK))
+            return FractureMesh(mesh, ct, ft, **tags, arrays=merged, remesh="patch", patch_cells=n_patch)
+        fallback = why
+    holder = {}
+
+    def keep(gmsh):
+        from .patch import capture
+        holder["arrays"] = capture(gmsh, lines)
+
+    mesh, ct, ft = build_mesh(comm, build, name="fractures", out=out, verbose=verbose, after=keep)
+    return FractureMesh(mesh, ct, ft, **tags, arrays=holder.get("arrays"), fallback=fallback)
 
 
 def _tips(lines):

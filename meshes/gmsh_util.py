@@ -78,7 +78,7 @@ def _geometry_and_mesh(gmsh, name, build, mesh_dim, out, verbose):
 
 
 def build_mesh(comm: MPI.Comm, build: Callable, name: str = "model", out: Optional[Union[str, Path]] = None,
-               gdim: int = 2, verbose: bool = False):
+               gdim: int = 2, verbose: bool = False, after: Optional[Callable] = None):
     """Mesh a Gmsh geometry on rank 0 and distribute it over ``comm``.
 
     Parameters
@@ -92,6 +92,8 @@ def build_mesh(comm: MPI.Comm, build: Callable, name: str = "model", out: Option
         fresh temporary folder)
     gdim : geometric (and mesh) dimension
     verbose : show Gmsh's own log
+    after : ``after(gmsh)`` runs on rank 0 once the mesh is made, before the model is removed
+        (e.g. to keep its arrays); ``build`` may also make the mesh itself, as a discrete model
 
     Returns
     -------
@@ -116,6 +118,30 @@ def build_mesh(comm: MPI.Comm, build: Callable, name: str = "model", out: Option
     try:
         if error is not None:
             raise RuntimeError(error)
+        if comm.rank == 0 and after is not None:
+            after(gmsh)
+        return compat.gmsh_model_to_mesh(gmsh.model, comm, rank=0, gdim=gdim)
+    finally:
+        if comm.rank == 0:
+            gmsh.model.remove()
+            if initialised_here:
+                gmsh.finalize()
+
+
+def mesh_from_arrays(comm: MPI.Comm, make_model: Callable, gdim: int = 2):
+    """Distribute a mesh that rank 0 holds as arrays: ``make_model(gmsh)`` adds it to a fresh
+    Gmsh model as discrete entities with physical groups (rank 0 only; e.g.
+    :func:`hydrofrac.meshes.patch.discrete_model`).  Returns (mesh, cell_tags, facet_tags)."""
+    import gmsh
+
+    initialised_here = False
+    if comm.rank == 0:
+        if not getattr(gmsh, "isInitialized", lambda: False)():
+            gmsh.initialize()
+            initialised_here = True
+        gmsh.option.setNumber("General.Terminal", 0)
+        make_model(gmsh)
+    try:
         return compat.gmsh_model_to_mesh(gmsh.model, comm, rank=0, gdim=gdim)
     finally:
         if comm.rank == 0:

@@ -63,7 +63,7 @@ def test_point_location_by_cell_finds_the_containing_cells():
         pytest.skip("serial: the candidate search of one rank")
     old, _ = cracked_plate(0.2, p=2)
     new, _ = cracked_plate(0.15, p=2)
-    x0, Jinv, cent, _ = _owned_cells(old)
+    x0, Jinv, cent, _, _ = _owned_cells(old)
     x0, Jinv = np.ascontiguousarray(x0), np.ascontiguousarray(Jinv)
     tree = cKDTree(cent)
     g, n = new.geometry, compat.num_cells_local(new.mesh)
@@ -141,7 +141,7 @@ def test_each_rank_receives_only_the_old_cells_near_its_new_cells():
     old, _ = cracked_plate(0.2, p=2)
     new, _ = cracked_plate(0.15, p=2)
     n_old, n_new = compat.num_cells_local(old.mesh), compat.num_cells_local(new.mesh)
-    x0, Jinv, cent, U = _exchange_near(comm, _owned_cells(old), old.geometry.vertices[:n_old],
+    x0, Jinv, cent, U, _ = _exchange_near(comm, _owned_cells(old), old.geometry.vertices[:n_old],
                                        new.geometry.vertices[:n_new])
     total = comm.allreduce(n_old, op=MPI.SUM)
     if comm.size > 1:

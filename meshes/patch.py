@@ -1,0 +1,433 @@
+"""Local remeshing: a new mesh that is the old one outside a patch around the changed crack
+tips, and a fresh Gmsh mesh of the patch with its boundary fixed (docs/benchmarks.md,
+"Remeshing: local patches").
+
+Rank 0 keeps the arrays of the last mesh it made (:class:`MeshArrays`: nodes, triangles and
+the tagged facet lines).  For a new crack network, :func:`patch_arrays` takes the triangles
+whose centroid lies within ``radius`` of an end of a new crack segment, keeps the boundary of
+their union as it is (its nodes and edges are not moved, so the triangles outside are the old
+ones, node for node), meshes the union again with the new segments embedded and the same size
+law as the full mesh (:class:`SizeLaw`), and returns the merged arrays.  Where a patch cannot
+be made, it says why and the caller meshes the whole domain: a patch boundary that touches
+itself at a vertex, a new segment outside the patch, or Gmsh failing on the patch.
+
+Everything here runs on rank 0; :func:`discrete_model` turns merged arrays into a Gmsh model
+that :func:`hydrofrac.compat.gmsh_model_to_mesh` distributes like any other.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, Optional, Sequence, Tuple
+
+import numpy as np
+
+#: Gmsh element types
+_LINE, _TRIANGLE = 1, 2
+
+
+@dataclass
+class MeshArrays:
+    """A triangle mesh as arrays (rank 0): ``nodes`` (n, 2), ``tris`` (t, 3) node indices,
+    ``lines`` facet tag -> (e, 2) node indices, and the crack polylines it was made for."""
+
+    nodes: np.ndarray
+    tris: np.ndarray
+    lines: Dict[int, np.ndarray]
+    polylines: Dict[int, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SizeLaw:
+    """The target size of the full mesh (meshes/fractures.py's Gmsh fields, evaluated here):
+    ``h_crack`` within ``h_crack`` of a crack or the wellbore wall, growing linearly to
+    ``h_far`` at ``grading``; with ``h_tip``, also ``h_tip`` within ``tip_radius`` of a tip,
+    growing to ``h_far`` over ``grading``."""
+
+    h_crack: float
+    h_far: float
+    grading: float
+    wellbore_radius: float = 0.0
+    h_tip: Optional[float] = None
+    tip_radius: float = 0.0
+
+    def sampler(self, polylines: Dict[int, np.ndarray], tips: Sequence[Tuple[float, float]] = ()):
+        """sizes(points (m, 2)) for the given crack lines (a tree of points sampled along them)."""
+        from scipy.spatial import cKDTree
+        step = self.h_crack / 8
+        pts = [np.zeros((0, 2))]
+        for line in polylines.values():
+            for a, b in zip(line[:-1], line[1:]):
+                n = max(int(np.ceil(np.linalg.norm(b - a) / step)), 1)
+                pts.append(a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a))
+        pts = np.concatenate(pts)
+        tree = cKDTree(pts) if pts.size else None
+        tip_tree = cKDTree(np.asarray(tips, dtype=float)) if len(tips) and self.h_tip is not None else None
+
+        span = max(self.grading - self.h_crack, 1e-300)
+
+        def sizes(xy):
+            """Target sizes at points (m, 2)."""
+            xy = np.atleast_2d(np.asarray(xy, dtype=float))
+            d = tree.query(xy)[0] if tree is not None else np.full(len(xy), np.inf)
+            if self.wellbore_radius > 0:
+                d = np.minimum(d, np.abs(np.hypot(xy[:, 0], xy[:, 1]) - self.wellbore_radius))
+            h = np.where(np.isfinite(d), self.h_crack + (self.h_far - self.h_crack)
+                         * np.clip((d - self.h_crack) / span, 0.0, 1.0), self.h_far)
+            if tip_tree is not None:
+                dt = tip_tree.query(xy)[0]
+                h = np.minimum(h, self.h_tip + (self.h_far - self.h_tip)
+                               * np.clip((dt - self.tip_radius) / self.grading, 0.0, 1.0))
+            return h
+
+        import math
+
+        def scalar(x, y):  # one Gmsh query: plain floats are 3x faster than the arrays above
+            d = float(tree.query((x, y))[0]) if tree is not None else math.inf
+            if self.wellbore_radius > 0:
+                d = min(d, abs(math.hypot(x, y) - self.wellbore_radius))
+            h = (self.h_crack + (self.h_far - self.h_crack) * min(max((d - self.h_crack) / span, 0.0), 1.0)
+                 if d < math.inf else self.h_far)
+            if tip_tree is not None:
+                dt = float(tip_tree.query((x, y))[0])
+                h = min(h, self.h_tip + (self.h_far - self.h_tip)
+                        * min(max((dt - self.tip_radius) / self.grading, 0.0), 1.0))
+            return h
+
+        sizes.scalar = scalar
+        return sizes
+
+
+def capture(gmsh, polylines) -> MeshArrays:
+    """The current Gmsh model's mesh as :class:`MeshArrays` (its physical groups: triangles of
+    dimension 2, tagged lines of dimension 1)."""
+    model = gmsh.model
+    tags, coords, _ = model.mesh.getNodes()
+    order = np.argsort(tags)
+    stags = tags[order]
+    nodes = coords.reshape(-1, 3)[order, :2].copy()
+
+    def index(node_tags):
+        return np.searchsorted(stags, node_tags).astype(np.int64)
+
+    tris, lines = [], {}
+    for dim, ptag in model.getPhysicalGroups():
+        for ent in model.getEntitiesForPhysicalGroup(dim, ptag):
+            types, _, ntags = model.mesh.getElements(dim, ent)
+            for t, nt in zip(types, ntags):
+                if dim == 2 and t == _TRIANGLE:
+                    tris.append(index(nt).reshape(-1, 3))
+                elif dim == 1 and t == _LINE:
+                    lines.setdefault(int(ptag), []).append(index(nt).reshape(-1, 2))
+    return MeshArrays(nodes, np.concatenate(tris), {k: np.concatenate(v) for k, v in lines.items()},
+                      {int(k): np.asarray(v, dtype=float) for k, v in polylines.items()})
+
+
+def discrete_model(gmsh, arrays: MeshArrays, cell_tag: int, name="patched"):
+    """A Gmsh model holding ``arrays`` as discrete entities and physical groups (cells
+    ``cell_tag``, each line tag its own group), for gmshio's ``model_to_mesh``."""
+    model = gmsh.model
+    model.add(name)
+    n = arrays.nodes.shape[0]
+    model.addDiscreteEntity(2, 1)
+    xyz = np.zeros((n, 3))
+    xyz[:, :2] = arrays.nodes
+    model.mesh.addNodes(2, 1, np.arange(1, n + 1), xyz.reshape(-1))
+    model.mesh.addElementsByType(1, _TRIANGLE, [], (arrays.tris + 1).reshape(-1))
+    model.addPhysicalGroup(2, [1], cell_tag)
+    for k, (tag, edges) in enumerate(sorted(arrays.lines.items())):
+        model.addDiscreteEntity(1, k + 1)
+        model.mesh.addElementsByType(k + 1, _LINE, [], (edges + 1).reshape(-1))
+        model.addPhysicalGroup(1, [k + 1], tag)
+
+
+def _segments(polylines):
+    return {(tag, tuple(np.round(a, 12)), tuple(np.round(b, 12)))
+            for tag, line in polylines.items() for a, b in zip(line[:-1], line[1:])}
+
+
+def new_segments(old: Dict[int, np.ndarray], new: Dict[int, np.ndarray]):
+    """The segments (tag, a, b) of the ``new`` polylines that are not segments of the ``old``
+    ones, and whether an old segment is gone (then the patch cannot follow the change)."""
+    o, n = _segments(old), _segments(new)
+    added = sorted(n - o)
+    return [(t, np.array(a), np.array(b)) for t, a, b in added], bool(o - n)
+
+
+def _edge_key(e):
+    e = np.sort(e, axis=1)
+    return e[:, 0] * (1 << 31) + e[:, 1]
+
+
+def _loops(bedges):
+    """Closed loops of boundary edges (each vertex on exactly two); None if a vertex is on more."""
+    from collections import defaultdict
+    nbr = defaultdict(list)
+    for a, b in bedges:
+        nbr[a].append(b)
+        nbr[b].append(a)
+    if any(len(v) != 2 for v in nbr.values()):
+        return None
+    seen, loops = set(), []
+    for start in nbr:
+        if start in seen:
+            continue
+        loop, prev, cur = [start], None, start
+        seen.add(start)
+        while True:
+            a, b = nbr[cur]
+            nxt = a if a != prev else b
+            if nxt == start:
+                break
+            loop.append(nxt)
+            seen.add(nxt)
+            prev, cur = cur, nxt
+        loops.append(loop)
+    return loops
+
+
+def _straight_pieces(edges, nodes, tol=1e-9):
+    """(tag, (start, end)) straight pieces covering the crack ``edges`` [(tag, (a, b))]: each
+    tag's edges are walked in chains between nodes not on exactly two of them, and a chain is
+    cut where it turns (collinear nodes dropped)."""
+    from collections import defaultdict
+    by_tag = defaultdict(list)
+    for tag, (a, b) in edges:
+        by_tag[tag].append((int(a), int(b)))
+    out = []
+    for tag, es in by_tag.items():
+        nbr = defaultdict(list)
+        for a, b in es:
+            nbr[a].append(b)
+            nbr[b].append(a)
+        done = set()
+        starts = [v for v, n in nbr.items() if len(n) != 2] or [next(iter(nbr))]
+        for v0 in starts:
+            for w in nbr[v0]:
+                if (v0, w) in done:
+                    continue
+                chain, prev, cur = [v0], v0, w
+                done.update({(v0, w), (w, v0)})
+                while True:
+                    chain.append(cur)
+                    if len(nbr[cur]) != 2 or cur == v0:
+                        break
+                    nxt = nbr[cur][0] if nbr[cur][0] != prev else nbr[cur][1]
+                    done.update({(cur, nxt), (nxt, cur)})
+                    prev, cur = cur, nxt
+                keep = [chain[0]]
+                for i in range(1, len(chain) - 1):
+                    a, b, c = nodes[keep[-1]], nodes[chain[i]], nodes[chain[i + 1]]
+                    u, v = b - a, c - b
+                    if abs(u[0] * v[1] - u[1] * v[0]) > tol * np.linalg.norm(u) * np.linalg.norm(v):
+                        keep.append(chain[i])
+                keep.append(chain[-1])
+                out += [(tag, (p, q)) for p, q in zip(keep[:-1], keep[1:])]
+    return out
+
+
+def _area(xy):
+    x, y = xy[:, 0], xy[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def _inside(points, nodes, tris):
+    """Whether each point lies in one of the triangles (closed)."""
+    a, b, c = nodes[tris[:, 0]], nodes[tris[:, 1]], nodes[tris[:, 2]]
+    out = np.zeros(len(points), dtype=bool)
+    for i, p in enumerate(points):
+        d = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0]
+        l1 = ((b - p)[:, 0] * (c - p)[:, 1] - (b - p)[:, 1] * (c - p)[:, 0]) / d
+        l2 = ((c - p)[:, 0] * (a - p)[:, 1] - (c - p)[:, 1] * (a - p)[:, 0]) / d
+        out[i] = bool(np.any((l1 >= -1e-9) & (l2 >= -1e-9) & (1 - l1 - l2 >= -1e-9)))
+    return out
+
+
+def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius: float, size: SizeLaw,
+                 tips=(), crack_tags=None):
+    """(merged arrays, number of patch triangles, None) or (None, 0, why not).  ``polylines``:
+    the new crack lines (tag -> points); ``crack_tags``: the facet tags that are cracks (the
+    other line tags, the domain boundary, are never inside a patch)."""
+    polylines = {int(k): np.asarray(v, dtype=float) for k, v in polylines.items()}
+    added, removed = new_segments(old.polylines, polylines)
+    if removed:
+        return None, 0, "a crack segment of the old mesh is gone"
+    if not added:
+        return MeshArrays(old.nodes, old.tris, dict(old.lines), polylines), 0, None
+    ends = np.array([p for _, a, b in added for p in (a, b)])
+    cent = old.nodes[old.tris].mean(axis=1)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+    dist = cKDTree(ends).query(cent)[0]
+    e = np.concatenate([old.tris[:, [0, 1]], old.tris[:, [1, 2]], old.tris[:, [2, 0]]])
+    keys = _edge_key(e)
+    nt = old.tris.shape[0]
+    tri_of = np.tile(np.arange(nt), 3)
+    # the patch: the triangles within radius of a new segment's end, and, connected to them
+    # through edges, those within the size law's grading that are too coarse for the new
+    # cracks (longest edge above 1.5 times the new target): the size changes there
+    fn = size.sampler(polylines, tips)
+    edge_len = np.linalg.norm(old.nodes[e[:, 0]] - old.nodes[e[:, 1]], axis=1).reshape(3, nt).max(axis=0)
+    core = dist < radius
+    cand = core.copy()
+    reach = np.flatnonzero(~core & (dist < size.grading))
+    if reach.size:
+        target = fn(cent[reach])
+        cand[reach] = edge_len[reach] > 1.5 * target
+    order = np.argsort(keys, kind="stable")
+    ks = keys[order]
+    pair = np.flatnonzero(ks[1:] == ks[:-1])  # interior edges: the two triangles sharing one
+    ta, tb = tri_of[order[pair]], tri_of[order[pair + 1]]
+    both = cand[ta] & cand[tb]
+    G = coo_matrix((np.ones(both.sum()), (ta[both], tb[both])), shape=(nt, nt))
+    _, comp = connected_components(G, directed=False)
+    near = cand & np.isin(comp, np.unique(comp[core]))
+    ptris = old.tris[near]
+    # the new segments must lie in the patch (ends and midpoints)
+    probe = np.concatenate([ends, np.array([0.5 * (a + b) for _, a, b in added])])
+    if not np.all(_inside(probe, old.nodes, ptris)):
+        return None, 0, "a new crack segment leaves the patch"
+    for _ in range(4):  # the triangles at a vertex where the boundary touches itself, and islands
+        # of old triangles inside the patch, join it (a patch with no pinch and no hole)
+        pe = np.concatenate([ptris[:, [0, 1]], ptris[:, [1, 2]], ptris[:, [2, 0]]])
+        uk, first, counts = np.unique(_edge_key(pe), return_index=True, return_counts=True)
+        bedges = pe[first[counts == 1]]
+        loops = _loops(bedges)
+        if loops is None:
+            deg = np.bincount(bedges.reshape(-1), minlength=old.nodes.shape[0])
+            near |= np.isin(old.tris, np.flatnonzero(deg > 2)).any(axis=1)
+            ptris = old.tris[near]
+            continue
+        if len(loops) == 1:
+            break
+        from matplotlib.path import Path as _Path
+        areas = [abs(_area(old.nodes[lp])) for lp in loops]
+        outer = int(np.argmax(areas))
+        inside = np.zeros(nt, dtype=bool)
+        for k, lp in enumerate(loops):
+            if k != outer:
+                inside |= _Path(old.nodes[lp]).contains_points(cent)
+        if not (inside & ~near).any():
+            break  # several pieces, no island
+        near |= inside
+        ptris = old.tris[near]
+    pe = np.concatenate([ptris[:, [0, 1]], ptris[:, [1, 2]], ptris[:, [2, 0]]])
+    uk, first, counts = np.unique(_edge_key(pe), return_index=True, return_counts=True)
+    loops = _loops(pe[first[counts == 1]])
+    if loops is None:
+        return None, 0, "the patch boundary touches itself at a vertex"
+    # each connected piece of the patch is one surface: its outer loop and its holes
+    # (the pieces again: an island filled in joins the piece around it)
+    sel = np.flatnonzero(near)
+    pos = np.full(nt, -1)
+    pos[sel] = np.arange(sel.size)
+    inner = near[ta] & near[tb]
+    _, pcomp = connected_components(coo_matrix((np.ones(inner.sum()), (pos[ta[inner]], pos[tb[inner]])),
+                                               shape=(sel.size, sel.size)), directed=False)
+    piece_of_node = {}
+    for k, t in zip(pcomp, ptris):
+        for v in t:
+            piece_of_node[int(v)] = int(k)
+    interior_keys = set(uk[counts == 2].tolist())
+    crack_tags = set(old.lines) if crack_tags is None else set(crack_tags)
+    inner_cracks = []  # (tag, (2,) node indices) old crack edges inside the patch
+    kept_lines = {}
+    for tag, edges in old.lines.items():
+        inside = np.isin(_edge_key(edges), list(interior_keys)) if tag in crack_tags else np.zeros(len(edges), bool)
+        kept_lines[tag] = edges[~inside]
+        inner_cracks += [(tag, ed) for ed in edges[inside]]
+
+    model = gmsh.model
+    model.add("patch")
+    occ = model.occ
+    point_of = {}
+
+    def pt(i):
+        if i not in point_of:
+            x, y = old.nodes[i]
+            point_of[i] = occ.addPoint(float(x), float(y), 0.0)
+        return point_of[i]
+
+    pieces = {}
+    for loop in loops:
+        ids = [occ.addLine(pt(a), pt(b)) for a, b in zip(loop, loop[1:] + loop[:1])]
+        pieces.setdefault(piece_of_node[loop[0]], []).append((abs(_area(old.nodes[loop])), occ.addCurveLoop(ids)))
+    surfs = []
+    for loops_of_piece in pieces.values():
+        loops_of_piece.sort(key=lambda al: -al[0])  # the outer loop first, then the holes
+        surfs.append((2, occ.addPlaneSurface([lid for _, lid in loops_of_piece])))
+    lines, owner, fixed = [], [], []
+    # the old crack edges inside the patch, as straight pieces between their chains' ends and
+    # corners: Gmsh meshes them again, so a new segment that ends on one makes no sliver edge
+    for tag, chain in _straight_pieces(inner_cracks, old.nodes):
+        lines.append((1, occ.addLine(pt(chain[0]), pt(chain[1]))))
+        owner.append(tag)
+        fixed.append(False)
+    for tag, a, b in added:
+        lines.append((1, occ.addLine(occ.addPoint(*a, 0.0), occ.addPoint(*b, 0.0))))
+        owner.append(tag)
+        fixed.append(False)
+    out_map = occ.fragment(surfs, lines)[1]
+    occ.synchronize()
+    crack_curves, fixed_curves = {}, set()
+    for tag, fx, bits in zip(owner, fixed, out_map[len(surfs):]):
+        for d, c in bits:
+            if d == 1:
+                crack_curves.setdefault(tag, set()).add(c)
+                if fx:
+                    fixed_curves.add(c)
+    all_crack = set().union(*crack_curves.values()) if crack_curves else set()
+    surfaces = model.getEntities(2)
+    model.addPhysicalGroup(2, [s for _, s in surfaces], 1)
+    for tag, cs in crack_curves.items():
+        model.addPhysicalGroup(1, sorted(cs), tag)
+    # the patch boundary and the old crack edges keep their nodes: one element per curve
+    for _, c in model.getBoundary(surfaces, combined=True, oriented=False):
+        if abs(c) not in all_crack:
+            model.mesh.setTransfiniteCurve(abs(c), 2)
+    for c in fixed_curves:
+        model.mesh.setTransfiniteCurve(c, 2)
+    # (Gmsh 4.8 passes (dim, tag, x, y, z), later versions also the size it would take)
+    model.mesh.setSizeCallback(lambda dim, tag, x, y, z, *lc: fn.scalar(x, y))
+    gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+    gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+    gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+    gmsh.option.setNumber("Mesh.Algorithm", 6)
+    try:
+        model.mesh.generate(2)
+        patch = capture(gmsh, {})
+    except Exception as err:  # noqa: BLE001 - the caller meshes the whole domain instead
+        return None, 0, f"Gmsh failed on the patch: {err}"
+    finally:
+        if hasattr(model.mesh, "removeSizeCallback"):
+            model.mesh.removeSizeCallback()
+        model.remove()
+    lost = sorted(set(owner) - {t for t, e in patch.lines.items() if len(e)})
+    if lost:
+        return None, 0, f"crack(s) {lost} have no facet in the patch mesh"
+    # every crack facet of the patch must be an edge of its triangles (embedded in the surface)
+    pk = _edge_key(np.concatenate([patch.tris[:, [0, 1]], patch.tris[:, [1, 2]], patch.tris[:, [2, 0]]]))
+    if any(not np.isin(_edge_key(e), pk).all() for e in patch.lines.values()):
+        return None, 0, "a crack is not embedded in the patch mesh"
+
+    # merge: the old nodes keep their indices; patch nodes at an old node's place are that node
+    pnodes = np.unique(ptris)
+    tree = cKDTree(old.nodes[pnodes])
+    d, j = tree.query(patch.nodes)
+    scale = float(np.ptp(old.nodes, axis=0).max())
+    same = d <= 1e-12 * scale
+    fresh = np.flatnonzero(~same)
+    index = np.empty(patch.nodes.shape[0], dtype=np.int64)
+    index[same] = pnodes[j[same]]
+    index[fresh] = old.nodes.shape[0] + np.arange(fresh.size)
+    nodes = np.concatenate([old.nodes, patch.nodes[fresh]])
+    tris = np.concatenate([old.tris[~near], index[patch.tris]])
+    for tag, edges in patch.lines.items():
+        kept_lines[tag] = np.concatenate([kept_lines.get(tag, np.zeros((0, 2), np.int64)), index[edges]])
+    # drop the old nodes no triangle uses any more
+    used = np.zeros(nodes.shape[0], dtype=bool)
+    used[tris.reshape(-1)] = True
+    renum = np.cumsum(used) - 1
+    merged = MeshArrays(nodes[used], renum[tris], {t: renum[e] for t, e in kept_lines.items() if len(e)},
+                        polylines)
+    return merged, int(near.sum()), None

@@ -1,0 +1,131 @@
+"""Local remeshing (hydrofrac.meshes.patch; docs/benchmarks.md, "Remeshing: local patches").
+
+* A remesh of an unchanged geometry is the same mesh: the fields move bit for bit and the
+  energy changes by exactly 0.
+* After an extension only the patch changes: every other triangle is an old one, its fields
+  are copied bit for bit, the mesh is conforming and covers the domain, the crack facets are
+  mesh edges and the grown crack has the facets of its new length.
+* A run with local remeshing stopped half way and restarted ends where the straight run ends
+  (the checkpoint keeps the mesh, which a full remesh of the same geometry would not give).
+"""
+import json
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from hydrofrac import ROCK, compat
+from hydrofrac.boundary import Absorbing
+from hydrofrac.interface import Crack, Interface, crack_facet_indices
+from hydrofrac.meshes.fractures import NATURAL, OUTER, PATH, Domain, Fracture, fracture_mesh
+from hydrofrac.meshes.patch import _edge_key
+from hydrofrac.network import CrackLine, CrackNetwork
+from hydrofrac.solver import Solver
+from hydrofrac.transfer import continue_run, transfer_fields
+
+DOM = Domain(half_width=2.0, half_height=2.0, wellbore_radius=0.0, h_crack=0.05, h_far=0.4, grading=1.0)
+S0 = np.array([[0.0, 0.0], [0.0, 1e6]])
+NF = np.array([[-0.5, 0.0], [0.5, 0.0]])
+
+
+def network(path):
+    cracks = [CrackLine(NATURAL, "natural", NF), CrackLine(PATH, "path", np.asarray(path, float))]
+    return CrackNetwork.from_cracks(cracks, 0.0, growing=[PATH])
+
+
+def solver_on(fm):
+    cracks = [Crack(NATURAL, friction=0.0, damage=1.0), Crack(PATH, friction=0.0, damage=0.0)]
+    s = Solver(fm.mesh, 2, ROCK, facet_tags=fm.facet_tags, sigma0=S0, bcs=[Absorbing(OUTER, stress=S0)],
+               crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks))
+    s.attach(Interface(s, fm.facet_tags, cracks))
+    return s
+
+
+def smooth(x):
+    return np.vstack([np.sin(3 * x[0]) * np.cos(2 * x[1]), x[0] * x[1], np.exp(-x[0] ** 2), x[1] ** 3, x[0] + 0 * x[1]])
+
+
+def check_arrays(a, area):
+    """A conforming triangulation of the domain whose tagged lines are mesh edges."""
+    x = a.nodes[a.tris]
+    det = (x[:, 1, 0] - x[:, 0, 0]) * (x[:, 2, 1] - x[:, 0, 1]) - (x[:, 1, 1] - x[:, 0, 1]) * (x[:, 2, 0] - x[:, 0, 0])
+    assert np.all(np.abs(det) > 0)
+    assert 0.5 * np.abs(det).sum() == pytest.approx(area, rel=1e-12)
+    e = np.concatenate([a.tris[:, [0, 1]], a.tris[:, [1, 2]], a.tris[:, [2, 0]]])
+    _, counts = np.unique(_edge_key(e), return_counts=True)
+    assert counts.max() == 2  # no edge in three triangles: conforming
+    keys = _edge_key(e)
+    for tag, edges in a.lines.items():
+        assert np.isin(_edge_key(edges), keys).all(), tag
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial: rank 0's arrays")
+def test_unchanged_geometry_is_the_same_mesh_and_moves_the_fields_bit_for_bit():
+    comm = MPI.COMM_WORLD
+    path = [[0.5, 0.0], [0.6, 0.0]]
+    full = fracture_mesh(comm, DOM, network=network(path))
+    again = fracture_mesh(comm, DOM, network=network(path), previous=full, patch_radius=0.3)
+    assert again.remesh == "patch" and again.patch_cells == 0
+    old, new = solver_on(full), solver_on(again)
+    old.set_initial_state(smooth)
+    transfer_fields(old, new)
+    assert np.array_equal(new.local_array(), old.local_array())
+    e_old, e_new = continue_run(old, new)
+    assert e_new - e_old == 0.0
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial: rank 0's arrays")
+def test_an_extension_changes_only_the_patch():
+    comm = MPI.COMM_WORLD
+    before = [[0.5, 0.0], [0.6, 0.0]]
+    after = [[0.5, 0.0], [0.6, 0.0], [0.7, 0.02]]
+    full = fracture_mesh(comm, DOM, network=network(before))
+    patched = fracture_mesh(comm, DOM, network=network(after), previous=full, patch_radius=0.3)
+    assert patched.remesh == "patch" and patched.fallback is None and patched.patch_cells > 0
+    a0, a1 = full.arrays, patched.arrays
+    check_arrays(a1, 16.0)
+    # every triangle but the patch's is an old one, vertex for vertex (Gmsh may also make a few
+    # of the patch's triangles again as they were)
+    k0 = {tuple(sorted(map(tuple, a0.nodes[t]))) for t in a0.tris}
+    k1 = [tuple(sorted(map(tuple, a1.nodes[t]))) for t in a1.tris]
+    kept = sum(k in k0 for k in k1)
+    assert len(a0.tris) - patched.patch_cells <= kept < len(a0.tris)
+    # the grown crack: its facets cover its new length, as in a full remesh of the new geometry
+    ref = fracture_mesh(comm, DOM, network=network(after))
+    for fm in (patched, ref):
+        e = fm.arrays.lines[PATH]
+        length = np.linalg.norm(fm.arrays.nodes[e[:, 0]] - fm.arrays.nodes[e[:, 1]], axis=1).sum()
+        assert length == pytest.approx(0.1 + np.hypot(0.1, 0.02), rel=1e-12)
+    # the fields outside the patch are copied bit for bit
+    old, new = solver_on(full), solver_on(patched)
+    old.set_initial_state(smooth)
+    transfer_fields(old, new)
+    same = 0
+    dofs_old, dofs_new = compat.cell_dofs(old.V), compat.cell_dofs(new.V)
+    U0, U1 = old.local_array().reshape(-1, 5), new.local_array().reshape(-1, 5)
+    where = {tuple(sorted(map(tuple, v))): c for c, v in enumerate(old.geometry.vertices)}
+    for c, v in enumerate(new.geometry.vertices):
+        o = where.get(tuple(sorted(map(tuple, v))))
+        if o is not None:
+            assert sorted(map(tuple, U1[dofs_new[c]])) == sorted(map(tuple, U0[dofs_old[o]]))
+            same += 1
+    assert same == kept
+
+
+def test_local_remeshing_restarts_where_the_straight_run_ends(tmp_path, run_command, mpirun):
+    script = "scenarios/intersection_regularized.py"
+    args = ["--quick", "--growth-remesh", "patch", "--frames", "2", "--t-end", "1.1e-3"]
+    straight, split = tmp_path / "straight", tmp_path / "split"
+    run_command([*mpirun(1), script, *args, "--out", straight], timeout=600)
+    s = json.loads((straight / "summary.json").read_text())
+    assert s["accuracy"]["local_remeshes"] == s["accuracy"]["remeshes"] > 0
+    run_command([*mpirun(1), script, *args[:-1], "9.8e-4", "--out", split], timeout=600)
+    half = json.loads((split / "summary.json").read_text())["accuracy"]["remeshes"]
+    assert 0 < half < s["accuracy"]["remeshes"]
+    run_command([*mpirun(1), script, *args, "--out", split, "--restart"], timeout=600)
+    r = json.loads((split / "summary.json").read_text())
+    assert r["steps"] == s["steps"] and r["cells"] == s["cells"]
+    for key in ("remeshes", "local_remeshes", "full_remesh_fallbacks", "grown_length"):
+        assert r["accuracy"][key] == s["accuracy"][key], key
+    for key in ("kinetic", "strain", "work_in", "balance_error"):
+        assert r["energy"][key] == pytest.approx(s["energy"][key], rel=1e-12, abs=1e-12), key
