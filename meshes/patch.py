@@ -421,7 +421,13 @@ def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius
     index[same] = pnodes[j[same]]
     index[fresh] = old.nodes.shape[0] + np.arange(fresh.size)
     nodes = np.concatenate([old.nodes, patch.nodes[fresh]])
-    tris = np.concatenate([old.tris[~near], index[patch.tris]])
+    # the patch must meet the kept mesh edge for edge: its boundary is the old patch boundary
+    new_t = index[patch.tris]
+    ne = np.concatenate([new_t[:, [0, 1]], new_t[:, [1, 2]], new_t[:, [2, 0]]])
+    nk, nc = np.unique(_edge_key(ne), return_counts=True)
+    if not np.array_equal(np.sort(nk[nc == 1]), np.sort(uk[counts == 1])):
+        return None, 0, "the patch mesh does not meet the kept mesh edge for edge"
+    tris = np.concatenate([old.tris[~near], new_t])
     for tag, edges in patch.lines.items():
         kept_lines[tag] = np.concatenate([kept_lines.get(tag, np.zeros((0, 2), np.int64)), index[edges]])
     # drop the old nodes no triangle uses any more
