@@ -26,7 +26,7 @@ from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .gmsh_util import build_mesh, mesh_from_arrays
+from .gmsh_util import build_mesh, gmsh_session, mesh_from_arrays
 
 ROCK = 1
 WELLBORE = 1
@@ -347,17 +347,10 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
         if comm.rank == 0:
             law = patch.SizeLaw(domain.h_crack, domain.h_far, domain.grading, domain.wellbore_radius,
                                 domain.h_tip, domain.tip_radius)
-            import gmsh
-            started = not getattr(gmsh, "isInitialized", lambda: False)()
-            if started:
-                gmsh.initialize()
-            gmsh.option.setNumber("General.Terminal", 0)
-            try:
+            with gmsh_session(comm) as gmsh:
+                gmsh.option.setNumber("General.Terminal", 0)
                 merged, n_patch, why = patch.patch_arrays(gmsh, previous.arrays, lines, patch_radius, law, tips,
                                                           crack_tags=set(lines))
-            finally:
-                if started:
-                    gmsh.finalize()
         n_patch, why = comm.bcast((n_patch, why), root=0)
         if why is None:
             mesh, ct, ft = mesh_from_arrays(comm, lambda g: patch.discrete_model(g, merged, ROCK))

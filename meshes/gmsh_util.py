@@ -10,6 +10,7 @@ geometry is saved next to the output so it can be opened with ``gmsh <file>``.
 from __future__ import annotations
 
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Optional, Union
 
@@ -104,47 +105,45 @@ def build_mesh(comm: MPI.Comm, build: Callable, name: str = "model", out: Option
     ------
     RuntimeError on every rank if the geometry or the meshing fails.
     """
-    import gmsh
+    with gmsh_session(comm) as gmsh:
+        error = _mesh_on_root(gmsh, name, build, gdim, out, verbose) if comm.rank == 0 else None
+        error = comm.bcast(error, root=0)
+        try:
+            if error is not None:
+                raise RuntimeError(error)
+            if comm.rank == 0 and after is not None:
+                after(gmsh)
+            return compat.gmsh_model_to_mesh(gmsh.model, comm, rank=0, gdim=gdim)
+        finally:
+            if comm.rank == 0:
+                gmsh.model.remove()
 
-    error = None
-    initialised_here = False
-    if comm.rank == 0:
-        # Gmsh < 4.9 has no isInitialized(): there, always start (and finish) a session here
-        if not getattr(gmsh, "isInitialized", lambda: False)():
-            gmsh.initialize()
-            initialised_here = True
-        error = _mesh_on_root(gmsh, name, build, gdim, out, verbose)
-    error = comm.bcast(error, root=0)
+
+@contextmanager
+def gmsh_session(comm: MPI.Comm):
+    """The gmsh module, started on rank 0 for the block unless it runs already (then it is
+    finished here too; Gmsh < 4.9 has no isInitialized(): there, always started here)."""
+    import gmsh
+    started = comm.rank == 0 and not getattr(gmsh, "isInitialized", lambda: False)()
+    if started:
+        gmsh.initialize()
     try:
-        if error is not None:
-            raise RuntimeError(error)
-        if comm.rank == 0 and after is not None:
-            after(gmsh)
-        return compat.gmsh_model_to_mesh(gmsh.model, comm, rank=0, gdim=gdim)
+        yield gmsh
     finally:
-        if comm.rank == 0:
-            gmsh.model.remove()
-            if initialised_here:
-                gmsh.finalize()
+        if started:
+            gmsh.finalize()
 
 
 def mesh_from_arrays(comm: MPI.Comm, make_model: Callable, gdim: int = 2):
     """Distribute a mesh that rank 0 holds as arrays: ``make_model(gmsh)`` adds it to a fresh
     Gmsh model as discrete entities with physical groups (rank 0 only; e.g.
     :func:`hydrofrac.meshes.patch.discrete_model`).  Returns (mesh, cell_tags, facet_tags)."""
-    import gmsh
-
-    initialised_here = False
-    if comm.rank == 0:
-        if not getattr(gmsh, "isInitialized", lambda: False)():
-            gmsh.initialize()
-            initialised_here = True
-        gmsh.option.setNumber("General.Terminal", 0)
-        make_model(gmsh)
-    try:
-        return compat.gmsh_model_to_mesh(gmsh.model, comm, rank=0, gdim=gdim)
-    finally:
+    with gmsh_session(comm) as gmsh:
         if comm.rank == 0:
-            gmsh.model.remove()
-            if initialised_here:
-                gmsh.finalize()
+            gmsh.option.setNumber("General.Terminal", 0)
+            make_model(gmsh)
+        try:
+            return compat.gmsh_model_to_mesh(gmsh.model, comm, rank=0, gdim=gdim)
+        finally:
+            if comm.rank == 0:
+                gmsh.model.remove()
