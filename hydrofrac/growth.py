@@ -121,17 +121,30 @@ class GrowthParams:
 
 def effective_stress_profile(solver, tip, direction, params: GrowthParams):
     """(theta [rad, relative to ``direction``], s̆(theta)) sampled as documented above."""
-    tip = np.asarray(tip, dtype=float)
-    phi0 = np.arctan2(direction[1], direction[0])
+    return effective_stress_profiles(solver, [(tip, direction)], params)[0]
+
+
+def effective_stress_profiles(solver, tips, params: GrowthParams):
+    """:func:`effective_stress_profile` of several (tip, direction) pairs, with one stress
+    evaluation for all their sample points (collective; the same values as one by one)."""
     theta = np.radians(np.linspace(-params.max_angle, params.max_angle, params.n_angles))
-    ang = phi0 + theta
-    t = np.stack([np.cos(ang), np.sin(ang)], axis=1)   # along the trial plane
-    n = np.stack([-np.sin(ang), np.cos(ang)], axis=1)  # its normal
-    sig = stress_at(solver, tip + params.r * t)
-    tr = np.einsum("mij,mj->mi", sig, n)
-    sn = np.einsum("mi,mi->m", tr, n)
-    st = np.einsum("mi,mi->m", tr, t)
-    return theta, rm.effective_stress(np.stack([sn, st], axis=-1), params.beta)
+    frames = []
+    for tip, direction in tips:
+        ang = np.arctan2(direction[1], direction[0]) + theta
+        t = np.stack([np.cos(ang), np.sin(ang)], axis=1)   # along the trial plane
+        n = np.stack([-np.sin(ang), np.cos(ang)], axis=1)  # its normal
+        frames.append((np.asarray(tip, dtype=float) + params.r * t, t, n))
+    if not frames:
+        return []
+    sig = stress_at(solver, np.concatenate([f[0] for f in frames]))
+    out = []
+    for k, (_, t, n) in enumerate(frames):
+        sg = sig[k * theta.size:(k + 1) * theta.size]
+        tr = np.einsum("mij,mj->mi", sg, n)
+        sn = np.einsum("mi,mi->m", tr, n)
+        st = np.einsum("mi,mi->m", tr, t)
+        out.append((theta, rm.effective_stress(np.stack([sn, st], axis=-1), params.beta)))
+    return out
 
 
 def growth_direction(solver, tip, direction, params: GrowthParams):
@@ -273,10 +286,12 @@ def advance_tips(solver, tips, params: GrowthParams, da: float, threshold: float
     if not da > 0:
         raise ValueError(f"growth increment da must be > 0 m; got {da}")
     moved = []
-    for i, tip in enumerate(tips):
-        if not tip.active or (ready is not None and not ready[i]):
-            continue
-        th_s, s_s = effective_stress_profile(solver, tip.point, tip.direction, params)
+    todo = [i for i, tip in enumerate(tips) if tip.active and (ready is None or ready[i])]
+    profiles = dict(zip(todo, effective_stress_profiles(solver, [(tips[i].point, tips[i].direction) for i in todo],
+                                                        params)))
+    for i in todo:
+        tip = tips[i]
+        th_s, s_s = profiles[i]
         theta, smax = profile_maximum(th_s, s_s, params)
         if not smax >= threshold:
             continue
@@ -581,7 +596,7 @@ class GrowthDriver:
                 last[i] = t
             ready = [r and (i not in last or solver.t - last[i] >= self.da / self.max_speed * (1 - 1e-12))
                      for i, r in enumerate(ready)]
-        before_state = self.checkpoint_state()
+        before_state = self.checkpoint_state(with_mesh=False)  # (restore_state takes no mesh)
         before = [(t.point.copy(), t.direction.copy()) for t in self.tips]
         direction_of = None
         if self.params.direction == "cod":
@@ -841,8 +856,9 @@ class GrowthDriver:
         return {"local_remeshes": kinds["patch"], "full_remesh_fallbacks": kinds["full_fallback"],
                 "fallback_reasons": dict(self.build.fallbacks)}
 
-    def checkpoint_state(self):
-        """The geometry state (JSON text): paths, tips, events, joins, remesh count."""
+    def checkpoint_state(self, with_mesh=True):
+        """The geometry state (JSON text): paths, tips, events, joins, remesh count, and with
+        local remeshing the mesh (``with_mesh``)."""
         import json
         return json.dumps({
             "paths": [np.asarray(p).tolist() for p in self.paths],
@@ -857,7 +873,8 @@ class GrowthDriver:
             "arrested": [[int(i), np.asarray(p).tolist(), np.asarray(e).tolist()] for i, (p, e) in self.arrested.items()],
             "count": self.count,
             # a local remesh's mesh, which a full remesh of the same geometry would not give again
-            "mesh": self.build.mesh_state() if hasattr(self.build, "mesh_state") else None}, default=float)
+            "mesh": self.build.mesh_state() if with_mesh and hasattr(self.build, "mesh_state") else None},
+            default=float)
 
     def restore_state(self, text):
         """Set the geometry state from :meth:`checkpoint_state` (no remesh)."""

@@ -227,10 +227,12 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
         if g.remesh != "patch":
             return None
         a = getattr(last.get("fm"), "arrays", None)
-        arrays = None if a is None else {"nodes": a.nodes.tolist(), "tris": a.tris.tolist(),
-                                         "lines": {str(k): v.tolist() for k, v in a.lines.items()},
-                                         "polylines": {str(k): v.tolist() for k, v in a.polylines.items()}}
-        return {"arrays": arrays, "kinds": dict(rebuild.kinds), "fallbacks": dict(rebuild.fallbacks)}
+        if "listed" not in last or last["listed"][0] is not a:  # (asked at every checkpoint: once per mesh)
+            last["listed"] = (a, None if a is None else {
+                "nodes": a.nodes.tolist(), "tris": a.tris.tolist(),
+                "lines": {str(k): v.tolist() for k, v in a.lines.items()},
+                "polylines": {str(k): v.tolist() for k, v in a.polylines.items()}})
+        return {"arrays": last["listed"][1], "kinds": dict(rebuild.kinds), "fallbacks": dict(rebuild.fallbacks)}
 
     def restore_mesh(state):
         """Before a restart's build: the checkpoint's mesh is the previous one, with no new

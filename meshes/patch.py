@@ -173,7 +173,7 @@ def _loops(bedges):
             continue
         loop, prev, cur = [start], None, start
         seen.add(start)
-        while True:
+        for _ in range(len(bedges) + 1):  # a loop has at most every boundary edge once
             a, b = nbr[cur]
             nxt = a if a != prev else b
             if nxt == start:
@@ -181,6 +181,8 @@ def _loops(bedges):
             loop.append(nxt)
             seen.add(nxt)
             prev, cur = cur, nxt
+        else:
+            return None
         loops.append(loop)
     return loops
 
@@ -190,9 +192,10 @@ def _straight_pieces(edges, nodes, tol=1e-9):
     tag's edges are walked in chains between nodes not on exactly two of them, and a chain is
     cut where it turns (collinear nodes dropped)."""
     from collections import defaultdict
-    by_tag = defaultdict(list)
+    by_tag = defaultdict(set)
     for tag, (a, b) in edges:
-        by_tag[tag].append((int(a), int(b)))
+        if a != b:  # (an edge listed twice, or in both directions, is one edge)
+            by_tag[tag].add((min(int(a), int(b)), max(int(a), int(b))))
     out = []
     for tag, es in by_tag.items():
         nbr = defaultdict(list)
@@ -207,13 +210,15 @@ def _straight_pieces(edges, nodes, tol=1e-9):
                     continue
                 chain, prev, cur = [v0], v0, w
                 done.update({(v0, w), (w, v0)})
-                while True:
+                for _ in range(len(es) + 1):  # a chain has at most every edge once
                     chain.append(cur)
                     if len(nbr[cur]) != 2 or cur == v0:
                         break
                     nxt = nbr[cur][0] if nbr[cur][0] != prev else nbr[cur][1]
                     done.update({(cur, nxt), (nxt, cur)})
                     prev, cur = cur, nxt
+                else:
+                    return None
                 keep = [chain[0]]
                 for i in range(1, len(chain) - 1):
                     a, b, c = nodes[keep[-1]], nodes[chain[i]], nodes[chain[i + 1]]
@@ -359,7 +364,11 @@ def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius
     lines, owner, fixed = [], [], []
     # the old crack edges inside the patch, as straight pieces between their chains' ends and
     # corners: Gmsh meshes them again, so a new segment that ends on one makes no sliver edge
-    for tag, chain in _straight_pieces(inner_cracks, old.nodes):
+    pieces_of_cracks = _straight_pieces(inner_cracks, old.nodes)
+    if pieces_of_cracks is None:
+        model.remove()
+        return None, 0, "a crack inside the patch is not a chain of edges"
+    for tag, chain in pieces_of_cracks:
         lines.append((1, occ.addLine(pt(chain[0]), pt(chain[1]))))
         owner.append(tag)
         fixed.append(False)
@@ -434,6 +443,7 @@ def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius
     used = np.zeros(nodes.shape[0], dtype=bool)
     used[tris.reshape(-1)] = True
     renum = np.cumsum(used) - 1
-    merged = MeshArrays(nodes[used], renum[tris], {t: renum[e] for t, e in kept_lines.items() if len(e)},
-                        polylines)
+    # (an edge on the patch boundary may come both from the kept lines and from the patch)
+    lines = {t: np.unique(np.sort(renum[e], axis=1), axis=0) for t, e in kept_lines.items() if len(e)}
+    merged = MeshArrays(nodes[used], renum[tris], lines, polylines)
     return merged, int(near.sum()), None
