@@ -41,18 +41,18 @@ def _owned_cells(solver):
 
 def _cell_keys(vertices):
     """A key per triangle that two triangles share exactly when they have the same three
-    vertices (bit for bit), in any order: the sorted vertex coordinates as bytes."""
+    vertices (bit for bit), in any order: the sorted vertex coordinates as one opaque value."""
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     order = np.lexsort((v[:, :, 1], v[:, :, 0]), axis=1)
-    s = np.take_along_axis(v, order[:, :, None], axis=1).reshape(len(v), 6)
-    return [row.tobytes() for row in s]
+    s = np.ascontiguousarray(np.take_along_axis(v, order[:, :, None], axis=1).reshape(len(v), 6))
+    return s.view(np.dtype((np.void, 6 * 8))).ravel()
 
 
 def _same_cells(old_vertices, new_vertices):
     """(new index, old index) of the new cells that are old cells (the same vertices)."""
-    where = {k: i for i, k in enumerate(_cell_keys(old_vertices))}
-    pairs = [(i, where[k]) for i, k in enumerate(_cell_keys(new_vertices)) if k in where]
-    return (np.array([p[0] for p in pairs], dtype=np.int64), np.array([p[1] for p in pairs], dtype=np.int64))
+    _, new_i, old_i = np.intersect1d(_cell_keys(new_vertices), _cell_keys(old_vertices), assume_unique=True,
+                                     return_indices=True)
+    return new_i.astype(np.int64), old_i.astype(np.int64)
 
 
 def _exchange_near(comm, old_cells, old_vertices, new_vertices):

@@ -361,41 +361,30 @@ def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius
     for loops_of_piece in pieces.values():
         loops_of_piece.sort(key=lambda al: -al[0])  # the outer loop first, then the holes
         surfs.append((2, occ.addPlaneSurface([lid for _, lid in loops_of_piece])))
-    lines, owner, fixed = [], [], []
     # the old crack edges inside the patch, as straight pieces between their chains' ends and
-    # corners: Gmsh meshes them again, so a new segment that ends on one makes no sliver edge
+    # corners (Gmsh meshes them again, so a new segment that ends on one makes no sliver edge),
+    # and the new segments
     pieces_of_cracks = _straight_pieces(inner_cracks, old.nodes)
     if pieces_of_cracks is None:
         model.remove()
         return None, 0, "a crack inside the patch is not a chain of edges"
-    for tag, chain in pieces_of_cracks:
-        lines.append((1, occ.addLine(pt(chain[0]), pt(chain[1]))))
-        owner.append(tag)
-        fixed.append(False)
-    for tag, a, b in added:
-        lines.append((1, occ.addLine(occ.addPoint(*a, 0.0), occ.addPoint(*b, 0.0))))
-        owner.append(tag)
-        fixed.append(False)
+    lines = ([(1, occ.addLine(pt(p), pt(q))) for _, (p, q) in pieces_of_cracks]
+             + [(1, occ.addLine(occ.addPoint(*a, 0.0), occ.addPoint(*b, 0.0))) for _, a, b in added])
+    owner = [tag for tag, _ in pieces_of_cracks] + [tag for tag, _, _ in added]
     out_map = occ.fragment(surfs, lines)[1]
     occ.synchronize()
-    crack_curves, fixed_curves = {}, set()
-    for tag, fx, bits in zip(owner, fixed, out_map[len(surfs):]):
-        for d, c in bits:
-            if d == 1:
-                crack_curves.setdefault(tag, set()).add(c)
-                if fx:
-                    fixed_curves.add(c)
+    crack_curves = {}
+    for tag, bits in zip(owner, out_map[len(surfs):]):
+        crack_curves.setdefault(tag, set()).update(c for d, c in bits if d == 1)
     all_crack = set().union(*crack_curves.values()) if crack_curves else set()
     surfaces = model.getEntities(2)
     model.addPhysicalGroup(2, [s for _, s in surfaces], 1)
     for tag, cs in crack_curves.items():
         model.addPhysicalGroup(1, sorted(cs), tag)
-    # the patch boundary and the old crack edges keep their nodes: one element per curve
+    # the patch boundary keeps its nodes: one element per boundary curve
     for _, c in model.getBoundary(surfaces, combined=True, oriented=False):
         if abs(c) not in all_crack:
             model.mesh.setTransfiniteCurve(abs(c), 2)
-    for c in fixed_curves:
-        model.mesh.setTransfiniteCurve(c, 2)
     # (Gmsh 4.8 passes (dim, tag, x, y, z), later versions also the size it would take)
     model.mesh.setSizeCallback(lambda dim, tag, x, y, z, *lc: fn.scalar(x, y))
     gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
