@@ -123,11 +123,22 @@ class OuterState:
     """Characteristic boundary with a given outer state, e.g. an exact solution.
 
     ``state(x, t)`` takes points (3, m) and returns (5, m): (v_x, v_y, s_xx, s_yy, s_xy).
+    ``point``, optional: the same state as a compiled (numba ``njit``) point function
+    ``point(x, y, t) -> (v_x, v_y, s_xx, s_yy, s_xy)``; the matrix-free operator then
+    evaluates it inside its compiled code at every stage instead of calling ``state``
+    (the solver checks that the two agree).
     """
 
     tag: int
     state: Callable = field(compare=False)
+    point: Optional[Callable] = field(default=None, compare=False)
     kinds = ("state", "state")
+
+    def __post_init__(self):
+        if self.point is not None and not hasattr(self.point, "py_func"):
+            raise ValueError(f"OuterState(point=...) must be a numba.njit point function point(x, y, t) -> "
+                             f"(v_x, v_y, s_xx, s_yy, s_xy); got {self.point!r} (compile it with numba.njit, or "
+                             "leave point unset)")
 
 
 BoundaryCondition = Union[Traction, Velocity, Absorbing, Symmetry, Slider, OuterState]
@@ -205,3 +216,27 @@ def ufl_data(bc, n, unit=False, uext=None):
         S = se * n
         return ((ufl.dot(ve, n), ufl.dot(S, n)), (ufl.dot(ve, t), ufl.dot(S, t)))
     return (zero, zero)  # Symmetry, Slider: homogeneous
+
+
+def point_data(bc, n):
+    """What :func:`ufl_data` gives, at facets with unit normals ``n`` (m, 2), as the outer
+    (V_n, V_t, S_n, S_t) of :func:`hydrofrac.riemann.boundary_pt` in each facet's frame
+    (t = n rotated by +90 degrees): returns (constant part (m, 4), history or None, the
+    part it multiplies (m, 4) or None).  An :class:`OuterState`'s data are its state at the
+    facet nodes at each time (the matrix-free operator evaluates it)."""
+    m = n.shape[0]
+    t = np.stack([-n[:, 1], n[:, 0]], axis=1)
+    const = np.zeros((m, 4))
+    if isinstance(bc, (Traction, Absorbing)):
+        S = n @ np.asarray(bc.stress)  # (symmetric) stress . n per facet
+        const[:, 2], const[:, 3] = np.einsum("fi,fi->f", S, n), np.einsum("fi,fi->f", S, t)
+        if isinstance(bc, Traction) and any(bc.pressure.values):
+            unit = np.zeros((m, 4))
+            unit[:, 2] = -1.0  # S = - p(t) n
+            return const, bc.pressure, unit
+    elif isinstance(bc, Velocity):
+        V = np.asarray(bc.value, dtype=float)
+        const[:, 0], const[:, 1] = n @ V, t @ V
+        if bc.history is not None:
+            return np.zeros((m, 4)), bc.history, const
+    return const, None, None

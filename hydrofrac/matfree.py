@@ -23,11 +23,12 @@ from __future__ import annotations
 import functools
 
 import numpy as np
+from mpi4py import MPI
 
 from . import compat
-from ._jit import njit
+from ._jit import HAVE_NUMBA, njit
 from .element import line_quadrature, triangle_quadrature
-from .riemann import bonded_jump_pt
+from .riemann import bonded_jump_pt, boundary_pt
 
 _REF_VERTICES = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
 
@@ -172,6 +173,38 @@ def _kernels(nb, nk, contig=False):
                         R[cm, j, m] += L * acc
 
     @njit
+    def boundary_fluxes(R, X, dofs, bcells, bcodes, normal, length, kinds, G, fnodes, Mf, Zd, Zs):
+        """R[c] += boundary flux corrections of every listed exterior facet (owned cell c):
+        per component, the Riemann problem of the interior trace against the outer
+        condition (:func:`hydrofrac.riemann.boundary_pt`; ``kinds[f]`` = (normal, tangential)
+        kind, ``G[f, k]`` = the outer (V_n, V_t, S_n, S_t) at facet node k), solved at the
+        facet nodes and integrated with the facet mass matrix -- exact as for interior
+        facets, since the corrections are linear in the trace and the data are nodal."""
+        F = np.empty((nk, 5))
+        for f in range(bcells.shape[0]):
+            c, kc = bcells[f], bcodes[f]
+            nx, ny = normal[f, 0], normal[f, 1]
+            Zn, Zt = Zd[c], Zs[c]
+            kn, kt = kinds[f, 0], kinds[f, 1]
+            for k in range(nk):
+                i = 5 * (nb * c + fnodes[kc, k]) if contig else 5 * dofs[c, fnodes[kc, k]]
+                vx, vy = X[i], X[i + 1]
+                tx, ty = X[i + 2] * nx + X[i + 4] * ny, X[i + 4] * nx + X[i + 3] * ny
+                dsn, dvn = boundary_pt(kn, vx * nx + vy * ny, tx * nx + ty * ny, Zn, G[f, k, 0], G[f, k, 2])
+                dst, dvt = boundary_pt(kt, -vx * ny + vy * nx, -tx * ny + ty * nx, Zt, G[f, k, 1], G[f, k, 3])
+                dvx, dvy = dvn * nx - dvt * ny, dvn * ny + dvt * nx
+                F[k, 0], F[k, 1] = dsn * nx - dst * ny, dsn * ny + dst * nx
+                F[k, 2], F[k, 3], F[k, 4] = dvx * nx, dvy * ny, dvx * ny + dvy * nx
+            L = length[f]
+            for i in range(nk):
+                j = fnodes[kc, i]
+                for m in range(5):
+                    acc = 0.0
+                    for k in range(nk):
+                        acc += Mf[i, k] * F[k, m]
+                    R[c, j, m] += L * acc
+
+    @njit
     def facet_dissipation(X, dofs, fcells, fcodes, fown, normal, length, fnodes, Mf, Zd, Zs):
         """Rate of energy dissipated by the upwind flux on the owned listed facets:
         int sum_i Z_i+ Z_i- / (Z_i+ + Z_i-) [[v_i]]^2 + [[s_i]]^2 / (Z_i+ + Z_i-), i = n, t
@@ -228,7 +261,7 @@ def _kernels(nb, nk, contig=False):
             strain += absdet[c] * es
         return 0.5 * kin, 0.5 * strain
 
-    return volume_and_inverse, facet_fluxes, facet_dissipation, cell_energies
+    return volume_and_inverse, facet_fluxes, facet_dissipation, cell_energies, boundary_fluxes
 
 
 def facet_nodes(ref, tables, qw):
@@ -263,11 +296,87 @@ def facet_nodes(ref, tables, qw):
     return fnodes, np.ascontiguousarray(Mf)
 
 
+def _facet_frames(mesh, g, facets, cells):
+    """Each facet's end points (va, vb), unit normal n, length, and whether n points out of
+    ``cells`` (one adjacent cell per facet)."""
+    f_off, f_arr = compat.connectivity(mesh, mesh.topology.dim - 1, 0)
+    x = mesh.geometry.x[:, :2]
+    v2g = compat.vertex_to_geometry(mesh)
+    va = x[v2g[f_arr[f_off[facets]]]]
+    vb = x[v2g[f_arr[f_off[facets] + 1]]]
+    tang = vb - va
+    length = np.linalg.norm(tang, axis=1)
+    n = np.stack([tang[:, 1], -tang[:, 0]], axis=1) / np.maximum(length, 1e-300)[:, None]
+    out = np.einsum("fi,fi->f", g.vertices.mean(axis=1)[cells] - 0.5 * (va + vb), n) < 0
+    return va, vb, n, length, out
+
+
+def _facet_codes(g, cells, va, vb):
+    """Code 3 i + j of the reference edge from vertex i to j that the facet (va -> vb) is in
+    each of ``cells``."""
+    Xa = g.to_reference(cells, va)
+    Xb = g.to_reference(cells, vb)
+    ia = np.argmin(np.linalg.norm(Xa[:, None, :] - _REF_VERTICES[None], axis=2), axis=1)
+    ib = np.argmin(np.linalg.norm(Xb[:, None, :] - _REF_VERTICES[None], axis=2), axis=1)
+    if len(cells):
+        err = max(np.abs(Xa - _REF_VERTICES[ia]).max(), np.abs(Xb - _REF_VERTICES[ib]).max())
+        if err > 1e-8 or np.any(ia == ib):
+            raise RuntimeError(f"facet vertices do not map onto reference vertices (error {err:.2e})")
+    return 3 * ia + ib
+
+
+def _outer_frame(u, n):
+    """Outer states u (5, m) as (V_n, V_t, S_n, S_t) (m, 4) in the frames of the normals n (m, 2)."""
+    nx, ny = n[:, 0], n[:, 1]
+    tx, ty = u[2] * nx + u[4] * ny, u[4] * nx + u[3] * ny
+    return np.stack([u[0] * nx + u[1] * ny, -u[0] * ny + u[1] * nx, tx * nx + ty * ny, -tx * ny + ty * nx], axis=1)
+
+
+@functools.lru_cache(maxsize=None)
+def _outer_filler(point):
+    """A compiled fill(G, rows, pts, n, t): the outer state ``point(x, y, t)`` at the facet
+    nodes of the boundary facets ``rows``, in their frames (as :func:`_outer_frame`)."""
+    def fill(G, rows, pts, n, t):
+        nk = G.shape[1]
+        for a in range(rows.size):
+            for k in range(nk):
+                q = a * nk + k
+                vx, vy, sxx, syy, sxy = point(pts[0, q], pts[1, q], t)
+                nx, ny = n[q, 0], n[q, 1]
+                tx, ty = sxx * nx + sxy * ny, sxy * nx + syy * ny
+                G[rows[a], k, 0] = vx * nx + vy * ny
+                G[rows[a], k, 1] = -vx * ny + vy * nx
+                G[rows[a], k, 2] = tx * nx + ty * ny
+                G[rows[a], k, 3] = -tx * ny + ty * nx
+    if not HAVE_NUMBA:  # pragma: no cover
+        return fill
+    import numba
+    return numba.njit(error_model="numpy")(fill)  # (not cached: it calls the user's function)
+
+
+def _check_point_state(bc, fill, rows, pts, n, comm):
+    """An OuterState's compiled ``point`` gives its ``state`` (at its facet nodes, t = 0)."""
+    G = np.zeros((rows.size, pts.shape[1] // max(rows.size, 1), 4))
+    try:
+        fill(G, np.arange(rows.size), pts, n, 0.0)
+    except Exception as exc:  # numba's typing errors name the line, not the boundary condition
+        raise ValueError(f"OuterState(tag={bc.tag}): its point function could not be compiled or called as "
+                         f"point(x, y, t) -> 5 floats ({type(exc).__name__}: {str(exc).splitlines()[0]})") from exc
+    ref = _outer_frame(np.asarray(bc.state(pts, 0.0)), n).reshape(G.shape)
+    err = float(np.abs(G - ref).max()) if G.size else 0.0
+    scale = float(np.abs(ref).max()) if G.size else 0.0
+    err, scale = comm.allreduce(err, op=MPI.MAX), comm.allreduce(scale, op=MPI.MAX)
+    if err > 1e-10 * max(scale, 1e-300):
+        raise ValueError(f"OuterState(tag={bc.tag}): point(x, y, t) and state(x, t) differ at the boundary nodes at "
+                         f"t = 0 (largest difference {err:.3g}, values up to {scale:.3g}); give point the same state")
+
+
 #: The forms of :mod:`hydrofrac.forms.elastodynamics` these kernels implement by hand, and the
 #: SHA-256 of their source as the kernels were written for them (:func:`implements_forms`).
 IMPLEMENTED_FORMS = ("fields", "compliance", "impedances", "tangent", "volume", "facet_flux", "bonded_riemann",
-                     "interior_flux", "interior_dissipation")
-IMPLEMENTED_SIGNATURE = "8f66d813fc80021fc1e1a85da386cedec626a14fc08b9cc082747967e9916004"
+                     "interior_flux", "interior_dissipation", "outer_riemann_component", "boundary_targets",
+                     "boundary_flux")
+IMPLEMENTED_SIGNATURE = "fa0130871ab7a680dd6ef464917180e160ccf9b44889c6826f89a50b0aeea611"
 
 
 def forms_signature() -> str:
@@ -295,6 +404,7 @@ class MatrixFreeOperator:
         mesh = solver.mesh
         tdim = mesh.topology.dim
         ref, g = solver.ref, solver.geometry
+        self.mesh, self.geometry, self.comm = mesh, g, mesh.comm
         p = solver.degree
         self.nowned = compat.num_cells_local(mesh)
         # reference derivative matrices S_r[i, j] = int phi_i d_r phi_j
@@ -336,9 +446,8 @@ class MatrixFreeOperator:
                     tables[3 * i + j] = ref.tabulate(pts)
         self.tables = tables
         self.fnodes, self.Mf = facet_nodes(ref, tables, self.qw)
-        self._volume, self._facets, self._dissipation, self._energies = _kernels(nb, self.fnodes.shape[1],
-                                                                                 self.contiguous)
-        f_off, f_arr = compat.connectivity(mesh, tdim - 1, 0)
+        self._volume, self._facets, self._dissipation, self._energies, self._boundary = _kernels(
+            nb, self.fnodes.shape[1], self.contiguous)
         c_off, c_arr = compat.connectivity(mesh, tdim - 1, tdim)
         facets = np.asarray(facets, dtype=np.int64)
         # facets of the outer ghost layer see one cell here: a ghost, so nothing to add
@@ -355,38 +464,79 @@ class MatrixFreeOperator:
         # visit the facets in cell order, so that both sides' blocks are mostly still in cache
         order = np.lexsort((c2.max(axis=1), c2.min(axis=1)))
         facets, c2 = facets[order], c2[order]
-        x = mesh.geometry.x[:, :2]
-        v2g = compat.vertex_to_geometry(mesh)
-        va = x[v2g[f_arr[f_off[facets]]]]
-        vb = x[v2g[f_arr[f_off[facets] + 1]]]
-        tang = vb - va
-        length = np.linalg.norm(tang, axis=1)
-        n = np.stack([tang[:, 1], -tang[:, 0]], axis=1) / np.maximum(length, 1e-300)[:, None]
-        centroid = g.vertices.mean(axis=1)
-        mid = 0.5 * (va + vb)
-        first_is_plus = np.einsum("fi,fi->f", centroid[c2[:, 0]] - mid, n) < 0
-        cells = np.where(first_is_plus[:, None], c2, c2[:, ::-1])
-        codes = np.zeros_like(cells)
-        for side in range(2):
-            Xa = g.to_reference(cells[:, side], va)
-            Xb = g.to_reference(cells[:, side], vb)
-            ia = np.argmin(np.linalg.norm(Xa[:, None, :] - _REF_VERTICES[None], axis=2), axis=1)
-            ib = np.argmin(np.linalg.norm(Xb[:, None, :] - _REF_VERTICES[None], axis=2), axis=1)
-            if facets.size:
-                err = max(np.abs(Xa - _REF_VERTICES[ia]).max(), np.abs(Xb - _REF_VERTICES[ib]).max())
-                if err > 1e-8 or np.any(ia == ib):
-                    raise RuntimeError(f"facet vertices do not map onto reference vertices (error {err:.2e})")
-            codes[:, side] = 3 * ia + ib
+        va, vb, n, length, first_out = _facet_frames(mesh, g, facets, c2[:, 0])
+        cells = np.where(first_out[:, None], c2, c2[:, ::-1])  # + side: the cell n points out of
+        codes = np.stack([_facet_codes(g, cells[:, side], va, vb) for side in range(2)], axis=1)
         fmask = compat.facet_owned_mask(mesh)
         self.fown = np.ascontiguousarray(fmask[facets])  # count each facet once in global sums
         self.fcells = np.ascontiguousarray(cells, dtype=np.int64)
         self.fcodes = np.ascontiguousarray(codes, dtype=np.int64)
         self.normal = np.ascontiguousarray(n)
         self.length = np.ascontiguousarray(length)
+        self.dof_x = compat.dof_coordinates(solver.V)
+        self.set_boundary(np.zeros(0, dtype=np.int64), [])  # (none until the solver sets them)
         self.R = np.zeros((self.nowned, self.dofs.shape[1], 5))
         self._R_clear = True
         self.Mref = np.ascontiguousarray(ref.mass())
         self.Bmat = solver.material_blocks
+
+    def set_boundary(self, facets, bc_of, bcs=()):
+        """The exterior facets of the owned cells, with the boundary condition of each
+        (``bc_of[i]``, one of ``bcs``; None: traction-free), applied by :meth:`begin` with
+        their data at the stage time (:func:`hydrofrac.boundary.point_data`; outer states
+        evaluated at the facet nodes).  Collective (``bcs``: the same on every rank)."""
+        from .boundary import OuterState, point_data
+        from .riemann import BOUNDARY_KINDS
+        facets = np.asarray(facets, dtype=np.int64)
+        cells = compat.facet_cells(self.mesh, facets).astype(np.int64)
+        g = self.geometry
+        va, vb, n, length, out = _facet_frames(self.mesh, g, facets, cells)
+        n = np.where(out[:, None], n, -n)
+        codes = _facet_codes(g, cells, va, vb)
+        nk = self.fnodes.shape[1]
+        self.bcells, self.bcodes = np.ascontiguousarray(cells), np.ascontiguousarray(codes, dtype=np.int64)
+        self.bnormal, self.blength = np.ascontiguousarray(n), np.ascontiguousarray(length)
+        self.bkinds = np.zeros((facets.size, 2), dtype=np.int64)  # traction-free: kind 0, data 0
+        G0 = np.zeros((facets.size, 4))
+        self._bhist, self._bouter = [], []
+        groups = {id(bc): (bc, []) for bc in bcs}  # every condition on every rank (collective checks)
+        for i, bc in enumerate(bc_of):
+            if bc is not None:
+                groups[id(bc)][1].append(i)
+        for bc, rows in groups.values():
+            rows = np.asarray(rows, dtype=np.int64)
+            self.bkinds[rows] = [BOUNDARY_KINDS[k] for k in bc.kinds]
+            if isinstance(bc, OuterState):
+                nodes = self.dofs[cells[rows][:, None], self.fnodes[codes[rows]]]  # (m, nk) dof blocks
+                pts = np.ascontiguousarray(self.dof_x[nodes.reshape(-1)].T)
+                nrm = np.ascontiguousarray(np.repeat(n[rows], nk, axis=0))
+                fill = None
+                if bc.point is not None:
+                    fill = _outer_filler(bc.point)
+                    _check_point_state(bc, fill, rows, pts, nrm, self.comm)
+                self._bouter.append((bc, rows, pts, nrm, fill))
+                continue
+            const, hist, unit = point_data(bc, n[rows])
+            G0[rows] = const
+            if hist is not None:
+                self._bhist.append((hist, rows, unit[:, None, :]))
+        self.G0 = np.ascontiguousarray(np.repeat(G0[:, None, :], nk, axis=1))
+        self.G = self.G0.copy()
+        self._bstatic = not (self._bhist or self._bouter)
+
+    def boundary_data(self, t):
+        """The outer data G of the boundary facets at time t (histories and outer states)."""
+        if self._bstatic:
+            return
+        G = self.G
+        G[:] = self.G0
+        for hist, rows, unit in self._bhist:
+            G[rows] += hist(t) * unit
+        for bc, rows, pts, n, fill in self._bouter:
+            if fill is not None:
+                fill(G, rows, pts, n, t)
+            else:
+                G[rows] = _outer_frame(np.asarray(bc.state(pts, t)), n).reshape(rows.size, -1, 4)
 
     def dissipation_rate(self, xloc):
         """This rank's share of the interior upwind dissipation rate [W/m] (ghosts current)."""
@@ -397,63 +547,29 @@ class MatrixFreeOperator:
         """This rank's (kinetic, strain) energy of x - x0 [J/m]."""
         return self._energies(xloc, x0loc, self.dofs, self.nowned, self.Mref, self.absdet, self.Bmat)
 
-    def apply(self, xloc, out):
-        """out (owned values) = M^{-1}(K_vol + K_int) x; ``xloc``: local form incl. ghosts."""
-        self.begin(xloc)
+    def apply(self, xloc, out, t=0.0):
+        """out (owned values) = M^{-1}(K_vol + K_int + K_bdry) x + the boundary data's term at
+        time t; ``xloc``: local form incl. ghosts."""
+        self.begin(xloc, t)
         self.finish(xloc, out)
 
-    def begin(self, xloc):
-        """Clear the cell residual ``R`` and add the interior facet fluxes; other facet terms
-        (crack interfaces) may be added to ``R[c, j, :]`` (owned cell c, local basis j)
-        before :meth:`finish`."""
+    def begin(self, xloc, t=0.0):
+        """Clear the cell residual ``R`` and add the interior and boundary facet fluxes (the
+        boundary data at time t); other facet terms (crack interfaces) may be added to
+        ``R[c, j, :]`` (owned cell c, local basis j) before :meth:`finish`."""
         R = self.R
         if not self._R_clear:  # finish() clears R as it reads it; after an interrupted stage, here
             R[:] = 0.0
         self._R_clear = False
         self._facets(R, xloc, self.dofs, self.fcells, self.fcodes, self.normal, self.length, self.fnodes, self.Mf,
                      self.Zd, self.Zs, self.nowned)
+        if self.bcells.size:
+            self.boundary_data(t)
+            self._boundary(R, xloc, self.dofs, self.bcells, self.bcodes, self.bnormal, self.blength, self.bkinds,
+                           self.G, self.fnodes, self.Mf, self.Zd, self.Zs)
 
     def finish(self, xloc, out):
         """out (owned values) = M^{-1} (R + volume terms)."""
         self._volume(out, self.R, xloc, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
                      self.Minv_ref, self.mat, self.Btab)
         self._R_clear = True
-
-
-@njit
-def _rows_mult_add(out, y, rows, indptr, cols, vals):
-    """out[rows[i]] += sum_k vals[k] y[cols[k]] over the stored rows i (CSR)."""
-    for i in range(rows.size):
-        acc = 0.0
-        for k in range(indptr[i], indptr[i + 1]):
-            acc += vals[k] * y[cols[k]]
-        out[rows[i]] += acc
-
-
-class SparseRows:
-    """``out += A y`` for an operator whose few nonzero rows couple only owned values,
-    such as the boundary-facet operator (each boundary cell with itself): the nonzero
-    rows in CSR with local column indices, so a mat-vec touches the boundary cells only
-    instead of every row of the vector (PETSc's MatMultAdd reads and writes all of
-    ``out``).  ``A``: an assembled PETSc AIJ matrix; :meth:`from_petsc` returns None if a
-    nonzero column is not owned by this rank (then keep PETSc's mat-vec)."""
-
-    def __init__(self, rows, indptr, cols, vals):
-        self.rows, self.indptr, self.cols, self.vals = rows, indptr, cols, vals
-
-    @classmethod
-    def from_petsc(cls, A):
-        indptr, cols, vals = A.getValuesCSR()
-        r0, r1 = A.getOwnershipRange()
-        counts = np.diff(indptr)
-        rows = np.nonzero(counts)[0]
-        keep = np.repeat(counts > 0, counts)
-        cols = cols[keep].astype(np.int64)
-        if cols.size and (cols.min() < r0 or cols.max() >= r1):
-            return None
-        return cls(rows.astype(np.int64), np.concatenate([[0], np.cumsum(counts[rows])]).astype(np.int64),
-                   cols - r0, np.ascontiguousarray(vals[keep]))
-
-    def mult_add(self, y, out):
-        """out += A y on this rank's owned values (arrays)."""
-        _rows_mult_add(out, y, self.rows, self.indptr, self.cols, self.vals)

@@ -54,6 +54,24 @@ def bonded_jump_pt(jv, js, Zp, Zm):
     return Zp * r * js + b * jv, r * (Zm * jv + js), -Zm * r * js + b * jv, r * (js - Zp * jv)
 
 
+#: boundary component kinds of :func:`boundary_pt` (``kinds`` of :mod:`hydrofrac.boundary`)
+BOUNDARY_KINDS = {"traction": 0, "velocity": 1, "state": 2}
+
+
+@njit
+def boundary_pt(kind, v, s, Z, V, S):
+    """Riemann problem between an interior trace (v, s) of one component and an outer
+    condition (forms.elastodynamics.outer_riemann_component): returns the corrections
+    (s* - s, v* - v).  ``kind`` 0: traction S prescribed; 1: velocity V prescribed; 2: an
+    outer state (V, S) of the same impedance Z (bonded)."""
+    if kind == 0:
+        return S - s, (S - s) / Z
+    if kind == 1:
+        return Z * (V - v), V - v
+    ds, dv, _, _ = bonded_jump_pt(V - v, S - s, Z, Z)
+    return ds, dv
+
+
 @njit
 def separation_pt(vp, vm, sp, sm, Zp, Zm, S):
     """Prescribed traction S on one component (eq. 4): returns (S, v+, v-), each side's

@@ -188,10 +188,10 @@ class Solver:
         Sneddon verification).  Its dissipation is reported separately.
     allow_unstable : accept a ``cfl`` above :data:`CFL_DEFAULT` (stability studies only: the
         run may blow up, and :meth:`check_stability` stops it)
-    operator : "matfree" (default: cell-local compiled kernels for the volume terms and
-        the interior upwind flux, :mod:`hydrofrac.matfree`, plus an assembled operator on
-        the boundary cells) or "assembled" (the whole A = M^{-1} K as one PETSc BAIJ
-        matrix, assembled from the UFL forms).  Both give the same results to round-off.
+    operator : "matfree" (default: cell-local compiled kernels for the volume terms, the
+        interior upwind flux and the boundary fluxes, :mod:`hydrofrac.matfree`; nothing is
+        assembled) or "assembled" (the whole A = M^{-1} K as one PETSc BAIJ matrix,
+        assembled from the UFL forms).  Both give the same results to round-off.
     """
 
     def __init__(self, mesh, degree: int, materials: Union[Material, Dict[int, Material]],
@@ -327,6 +327,23 @@ class Solver:
         n = ufl.FacetNormal(mesh)
         rho, lam, mu = self.rho, self.lam, self.mu
 
+        self._mass_factors()
+        self._M = None
+        self.A = self.B = self.matfree = None
+        self.c0, self.c_hist, self.outer, self._loads = None, [], [], []
+        if self.operator == "matfree":
+            # the boundary facets in the kernel too: nothing is assembled (docs/benchmarks.md)
+            from .matfree import MatrixFreeOperator
+            self.matfree = MatrixFreeOperator(self, self._bulk_facets())
+            facets, bc_of = self._boundary_facets(btags)
+            self.matfree.set_boundary(facets, bc_of, self.bcs)
+            for bc in self.bcs:  # the outer states' functions, for the energy budget's boundary power
+                if isinstance(bc, OuterState):
+                    self.outer.append((bc, compat.function(V, f"outer_{bc.tag}"), None, self._outer_points(bc.tag)))
+            self._work = [self.x_like() for _ in range(2 if self.scheme in LOW_STORAGE else num_stages(self.scheme) + 2)]
+            self.account = EnergyAccount(self, ds, free_tag, n)
+            return
+
         a_bulk = ef.volume(U, W, dx) + ef.interior_flux(U, W, rho, lam, mu, dS(BULK_FACET))
         a_bdry = None
         homog = {"traction": 0.0, "velocity": 0.0, "state": (0.0, 0.0)}
@@ -339,32 +356,13 @@ class Solver:
             term = ef.boundary_flux(U, W, rho, lam, mu, n, ("traction", "traction"), (0.0, 0.0), ds(free_tag))
             a_bdry = term if a_bdry is None else a_bdry + term
 
-        self._M = None
-        # M^{-1} as a matrix is needed only where it multiplies boundary terms (the boundary
-        # operator, its loads and outer states), unless the whole operator is assembled: the
-        # matrix-free run builds it on the boundary cells only (docs/benchmarks.md, "Remeshing")
-        self.Minv = self._inverse_mass(None if self.operator == "assembled" else self._boundary_cells())
-        self.A = self.B = self.matfree = None
-        if self.operator == "assembled":
-            K = compat.assemble_matrix(compat.form(a_bulk if a_bdry is None else a_bulk + a_bdry))
-            self.A = _to_baij(self.Minv.matMult(K), ef.NCOMP)
-            K.destroy()
-        else:
-            from .matfree import MatrixFreeOperator, SparseRows
-            self.matfree = MatrixFreeOperator(self, self._bulk_facets())
-            if a_bdry is not None:  # boundary cells only: a sparse, mostly empty operator
-                K = compat.assemble_matrix(compat.form(a_bdry))
-                MK = self.Minv.matMult(K)
-                self.B = SparseRows.from_petsc(MK)
-                self.B = self.B if self.B is not None else _to_baij(MK, ef.NCOMP)
-                if isinstance(self.B, SparseRows):
-                    MK.destroy()
-                K.destroy()
+        self.Minv = self._inverse_mass()
+        K = compat.assemble_matrix(compat.form(a_bulk if a_bdry is None else a_bulk + a_bdry))
+        self.A = _to_baij(self.Minv.matMult(K), ef.NCOMP)
+        K.destroy()
 
-        # loads: constant part, history-scaled parts, outer states
-        self.c0 = None
-        self.c_hist = []  # (history, vector)
-        self.outer = []   # (bc, Function uext, Minv B)
+        # loads: constant part, history-scaled parts (history, vector), outer states (bc,
+        # Function uext, M^{-1} B, points)
         Lconst = None
         for bc in self.bcs:
             if isinstance(bc, (Traction, Velocity, Absorbing)):
@@ -398,21 +396,25 @@ class Solver:
         self._work = [self.x_like() for _ in range(2 if self.scheme in LOW_STORAGE else num_stages(self.scheme) + 2)]
         self.account = EnergyAccount(self, ds, free_tag, n)
 
-    def _boundary_cells(self):
-        """The owned cells with an exterior facet (sorted)."""
+    def _boundary_facets(self, btags):
+        """The exterior facets of the owned cells, and the boundary condition of each (None:
+        traction-free, as on facets without a condition's tag)."""
         nloc = compat.num_cells_local(self.mesh)
-        cells = compat.facet_cells(self.mesh, compat.exterior_facet_indices(self.mesh))
-        return np.unique(cells[cells < nloc])
+        facets = compat.exterior_facet_indices(self.mesh)
+        facets = facets[compat.facet_cells(self.mesh, facets) < nloc]
+        by_tag = {bc.tag: bc for bc in self.bcs}
+        tag_of = np.full(compat.num_facets_with_ghosts(self.mesh), -1, dtype=np.int64)
+        if btags is not None:
+            tag_of[btags.indices] = btags.values
+        return facets, [by_tag.get(int(tag)) for tag in tag_of[facets]]
 
-    def _inverse_mass(self, cells=None):
-        """Block-diagonal M^{-1} in closed form: per cell (M_ref^{-1} kron B_c^{-1}) / |det J|,
-        on all owned cells or only on ``cells`` (the other rows empty).
+    def _mass_factors(self):
+        """The per-cell factors of the block-diagonal mass matrix: M_c = |det J| M_ref kron B_c.
 
         B_c is the 5x5 material block: rho for v, the plane-strain compliance for
         (s_xx, s_yy, s_xy) with the factor 2 of the shear term in C^{-1} sigma : tau.
         """
         nloc = compat.num_cells_local(self.mesh)
-        Mref_inv = np.linalg.inv(self.ref.mass())
         kappa = plane_strain_kappa(self.lam_cell, self.mu_cell)
         B = np.zeros((self.lam_cell.size, 5, 5))
         B[:, 0, 0] = B[:, 1, 1] = self.rho_cell
@@ -420,20 +422,19 @@ class Solver:
         B[:, 2, 2] = B[:, 3, 3] = c * (1 - kappa)
         B[:, 2, 3] = B[:, 3, 2] = -c * kappa
         B[:, 4, 4] = 2 * c
-        Binv = np.linalg.inv(B)
         self.material_blocks = np.ascontiguousarray(B)  # per cell: rho for v, compliance for sigma
+        self.Mref_inv = np.ascontiguousarray(np.linalg.inv(self.ref.mass()))
         absdet = np.abs(self.geometry.detJ)
-        # factors of the per-cell blocks (all cells incl. ghosts), for cell-local kernels:
-        # M_c^{-1} = Mref_inv kron Binv_scaled[c]
-        self.Mref_inv = np.ascontiguousarray(Mref_inv)
-        self.Binv_scaled = np.ascontiguousarray(Binv / absdet[:, None, None])
-        nd = Mref_inv.shape[0] * 5
-        self._absdet_own = absdet[:nloc].copy()  # the mass matrix's factors, for M (built on first use)
-        if cells is None:
-            blocks = np.einsum("ij,cab->ciajb", Mref_inv, self.Binv_scaled[:nloc]).reshape(-1, nd, nd)
-            return self._block_diag_matrix(blocks)
-        blocks = np.einsum("ij,cab->ciajb", Mref_inv, self.Binv_scaled[cells]).reshape(-1, nd, nd)
-        return self._block_diag_subset(np.asarray(cells), blocks)
+        self._absdet_own = absdet[:nloc].copy()  # for M (built on first use)
+        # M_c^{-1} = Mref_inv kron Binv_scaled[c] (all cells incl. ghosts), for cell-local kernels
+        self.Binv_scaled = np.ascontiguousarray(np.linalg.inv(B) / absdet[:, None, None])
+
+    def _inverse_mass(self):
+        """Block-diagonal M^{-1} in closed form: per owned cell (M_ref^{-1} kron B_c^{-1}) / |det J|."""
+        nloc = self._absdet_own.size
+        nd = self.Mref_inv.shape[0] * 5
+        return self._block_diag_matrix(np.einsum("ij,cab->ciajb", self.Mref_inv,
+                                                 self.Binv_scaled[:nloc]).reshape(-1, nd, nd))
 
     @property
     def M(self):
@@ -446,31 +447,6 @@ class Solver:
                       * self._absdet_own[:, None, None, None, None]).reshape(-1, nd, nd)
             self._M = _to_baij(self._block_diag_matrix(blocks), ef.NCOMP)
         return self._M
-
-    def _block_diag_subset(self, cells, blocks):
-        """PETSc AIJ matrix with the dense blocks of the owned ``cells`` on the diagonal and the
-        rows of every other cell empty."""
-        nd = blocks.shape[1]
-        own, _, bs, _ = compat.dof_counts(self.V)
-        rstart = compat.index_offset(self.V) * bs
-        n = own * bs
-        dofs = compat.cell_dofs(self.V)[cells]
-        rows = (dofs[:, :, None] * bs + np.arange(bs)).reshape(len(cells), nd)  # local row per block row
-        colorder = np.argsort(rows, axis=1)
-        cols = np.take_along_axis(rows, colorder, axis=1) + rstart  # each row's columns, sorted
-        vals = np.take_along_axis(blocks, colorder[:, None, :], axis=2)  # (k, nd, nd) columns sorted
-        flat = rows.reshape(-1)
-        order = np.argsort(flat)
-        counts = np.zeros(n, dtype=np.int64)
-        counts[flat] = nd
-        indptr = np.concatenate([[0], np.cumsum(counts)]).astype(PETSc.IntType)
-        cell_of = np.repeat(np.arange(len(cells)), nd)[order]
-        pos_of = np.tile(np.arange(nd), len(cells))[order]
-        Mat = PETSc.Mat().createAIJ(size=((n, PETSc.DECIDE), (n, PETSc.DECIDE)), bsize=ef.NCOMP,
-                                   csr=(indptr, np.ascontiguousarray(cols[cell_of].reshape(-1), dtype=PETSc.IntType),
-                                        np.ascontiguousarray(vals[cell_of, pos_of, :].reshape(-1))), comm=self.comm)
-        Mat.assemble()
-        return Mat
 
     def _block_diag_matrix(self, blocks):
         """PETSc AIJ matrix with the per-owned-cell dense blocks on the diagonal."""
@@ -599,28 +575,24 @@ class Solver:
             mf = self.matfree
             with y.localForm() as yl:
                 X = yl.array_r
-                mf.begin(X)
+                mf.begin(X, t)
                 self.timers.add("bulk operator", time.perf_counter() - t0)
                 # crack interfaces add their owned cells' flux before the inverse mass
                 rates = [ext.stage_cells(X, t, mf.R) for ext in self.extensions]
                 t0 = time.perf_counter()
                 mf.finish(X, out.array)
-            if isinstance(self.B, PETSc.Mat):
-                self.B.multAdd(y, out, out)
-            elif self.B is not None:
-                self.B.mult_add(y.array_r, out.array)
         else:
             self.A.mult(y, out)
+            if self._loads:
+                o = out.array
+                for hist, (idx, vals) in self._loads:
+                    o[idx] += vals if hist is None else hist(t) * vals
+            for bc, uext, MB, where in self.outer:
+                set_outer_state(bc, uext, where, t)
+                MB.multAdd(compat.function_vector(uext), out, out)
         if self.relaxation:
             yv, ov = y.array_r.reshape(-1, ef.NCOMP), out.array.reshape(-1, ef.NCOMP)
             ov[:, :2] -= self.relaxation * yv[:, :2]
-        if self._loads:
-            o = out.array
-            for hist, (idx, vals) in self._loads:
-                o[idx] += vals if hist is None else hist(t) * vals
-        for bc, uext, MB, where in self.outer:
-            set_outer_state(bc, uext, where, t)
-            MB.multAdd(compat.function_vector(uext), out, out)
         self.timers.add("bulk operator", time.perf_counter() - t0)
         if rates is not None:
             for ext in self.extensions:

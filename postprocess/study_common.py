@@ -101,18 +101,19 @@ def save_figure(fig, png):
     plt.close(fig)
 
 
-def plane_wave_solver(comm, p, N, material, state, travel, scheme="rk4", cfl=None):
+def plane_wave_solver(comm, p, N, material, state, travel, scheme="rk4", cfl=None, point=None):
     """DG solver on the unit square (``N`` x ``N`` cells) with the exact plane wave
-    ``state(x, t)`` as initial state and as outer boundary state, and a time step that ends
-    exactly when the wave has travelled ``travel`` (at c_d), at the CFL constant ``cfl`` of
-    ``scheme`` (None: its documented value).  Returns (solver, steps)."""
+    ``state(x, t)`` as initial state and as outer boundary state (``point``: the same as a
+    compiled point function, :class:`~hydrofrac.boundary.OuterState`), and a time step that
+    ends exactly when the wave has travelled ``travel`` (at c_d), at the CFL constant ``cfl``
+    of ``scheme`` (None: its documented value).  Returns (solver, steps)."""
     from hydrofrac import compat
     from hydrofrac.boundary import OuterState
     from hydrofrac.solver import Solver
     mesh = compat.create_rectangle(comm, (0.0, 0.0), (1.0, 1.0), N, N)
     facets = compat.locate_boundary_facets(mesh, lambda x: np.full(x.shape[1], True))
     tags = compat.meshtags(mesh, 1, facets, np.full(facets.size, 1))
-    solver = Solver(mesh, p, material, facet_tags=tags, bcs=[OuterState(1, state)], scheme=scheme, cfl=cfl)
+    solver = Solver(mesh, p, material, facet_tags=tags, bcs=[OuterState(1, state, point)], scheme=scheme, cfl=cfl)
     solver.set_initial_state(lambda x: state(x, 0.0))
     t_end = travel / material.cd
     steps = int(math.ceil(t_end / solver.dt - 1e-9))

@@ -57,6 +57,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -66,6 +69,8 @@ from mpi4py import MPI
 from hydrofrac import ROCK, compat
 from hydrofrac.postprocess.rundata import write_csv
 from hydrofrac.postprocess.study_common import log_axes, plane_wave_solver, save_figure
+from hydrofrac.postprocess.study_work_precision import TRAVEL, state_pt
+from hydrofrac.postprocess.study_work_precision import state as plane_wave
 from hydrofrac.solver import LOW_STORAGE, TABLEAUX, Solver
 # -
 
@@ -102,6 +107,57 @@ def copy_bandwidth(comm, mib=128, repeats=7):
         comm.barrier()
         best = min(best, time.perf_counter() - t0)
     return comm.size * 2 * src.nbytes / best
+
+
+# ## Peak floating-point rate of one core
+#
+# DGEMM (OpenBLAS, one thread, n = 1536, in a child process so that its thread count is
+# set before NumPy loads): the rate a core attains on dense, cache-blocked, vectorised
+# multiply-adds, the roofline's compute ceiling.
+
+PEAK_CODE = """
+import time
+import numpy as np
+n = 1536
+a, b = np.random.rand(n, n), np.random.rand(n, n)
+a @ b
+best = min(((lambda t0: (a @ b, time.perf_counter() - t0)[1])(time.perf_counter()) for _ in range(5)))
+print(2.0 * n ** 3 / best)
+"""
+
+
+def peak_flops():
+    """One core's DGEMM rate [flop/s]."""
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    res = subprocess.run([sys.executable, "-c", PEAK_CODE], capture_output=True, text=True, env=env, check=True)
+    return float(res.stdout.strip())
+
+
+# ## Flop model of one stage (per DOF), matrix-free
+#
+# Counted from the kernels' loops (a multiply-add = 2 flops), per owned cell with nb basis
+# functions and per facet with nk = p + 1 nodes:
+#
+# * volume: both reference derivatives 2·(2 nb² · 5), the inverse Jacobian's combinations
+#   nb · 16, adding the cell residual nb · 10, the reference inverse mass 2 nb² · 5, the
+#   material block nb · 20;
+# * an interior facet: per node the jumps and their rotation (28), two bonded solutions (16),
+#   the rotation back for both sides (32); per side the facet mass matrix 2 nk² · 5;
+# * a boundary facet: per node the trace rotation (12), the two components (8), the rotation
+#   back (16); the facet mass matrix 2 nk² · 5;
+# * the RK4 vector updates: 2 flops per DOF·stage for y = x + c k and 2 for the final sum.
+
+def flops_per_dof_stage(solver: Solver):
+    """Flops per DOF·stage of the matrix-free step (the model above); None when assembled."""
+    mf = solver.matfree
+    if mf is None:
+        return None
+    nb, nk = mf.dofs.shape[1], mf.fnodes.shape[1]
+    cell = 2 * (2 * nb * nb * 5) + nb * 16 + nb * 10 + 2 * nb * nb * 5 + nb * 20
+    facet = nk * (28 + 16 + 32) + 2 * (2 * nk * nk * 5)
+    bfacet = nk * (12 + 8 + 16) + 2 * nk * nk * 5
+    total = mf.nowned * cell + mf.fcells.shape[0] * facet + mf.bcells.shape[0] * bfacet
+    return solver.comm.allreduce(total, op=MPI.SUM) / solver.num_dofs + 4.0
 
 
 # ## Byte model
@@ -152,7 +208,7 @@ def timed(comm, fn, count):
     return comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
 
 
-def throughput_case(comm, p, N, bandwidth, operator, mesh):
+def throughput_case(comm, p, N, bandwidth, operator, mesh, peak=None):
     t0 = time.perf_counter()
     solver = Solver(mesh, p, ROCK, operator=operator)
     setup = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
@@ -172,13 +228,17 @@ def throughput_case(comm, p, N, bandwidth, operator, mesh):
     rate = n * s * steps / wall
     row = {
         "operator": operator, "p": p, "N": N, "cells": solver.num_cells, "dofs": n, "ranks": comm.size, "setup_s": setup,
-        "steps": steps, "wall_s": wall, "dof_stages_per_s": rate, "dof_stages_per_s_per_rank": rate / comm.size,
+        "steps": steps, "stages": s, "wall_s": wall, "dof_stages_per_s": rate, "dof_stages_per_s_per_rank": rate / comm.size,
         "mult_dofs_per_s": n * mults / wall_mult,
         "bytes_per_dof_stage": op_bytes + rk_bytes, "operator_bytes_per_dof": op_bytes,
         "bandwidth_GBs": bandwidth / 1e9,
         "fraction_of_bound": rate * (op_bytes + rk_bytes) / bandwidth,
         "mult_fraction_of_bound": n * mults / wall_mult * op_bytes / bandwidth,
     }
+    flops = flops_per_dof_stage(solver)
+    if flops is not None and peak:  # one core's peak per rank
+        row.update({"flops_per_dof_stage": flops, "peak_GFlops_per_core": peak / 1e9,
+                    "fraction_of_peak_flops": rate / comm.size * flops / peak})
     for v in (x, y):
         v.destroy()
     return row
@@ -193,18 +253,7 @@ def throughput_case(comm, p, N, bandwidth, operator, mesh):
 # (energy) norm, ρ|v|² + σ:C⁻¹σ, of the difference between the DG solution and
 # the nodal interpolant of the exact one, relative to the norm of the latter.
 
-DIRECTION = np.array([math.cos(0.3), math.sin(0.3)])
-WIDTH = 0.12
-TRAVEL = 0.2
-
-
-def plane_wave(x, t, mat=ROCK):
-    """Exact plane P wave: (v_x, v_y, s_xx, s_yy, s_xy) at points x (3, m) and time t."""
-    d = DIRECTION
-    xi = d[0] * (x[0] - 0.5) + d[1] * (x[1] - 0.5) - mat.cd * t
-    g = np.exp(-(xi / WIDTH) ** 2)
-    S = -(mat.lam * np.eye(2) + 2 * mat.mu * np.outer(d, d)) / mat.cd
-    return np.vstack([d[0] * g, d[1] * g, S[0, 0] * g, S[1, 1] * g, S[0, 1] * g])
+# the plane P wave of the work-precision study (exact state and its compiled point form)
 
 
 def energy_norm(solver, values):
@@ -220,7 +269,7 @@ def energy_norm(solver, values):
 
 
 def work_precision_case(comm, p, N):
-    solver, steps = plane_wave_solver(comm, p, N, ROCK, plane_wave, TRAVEL)
+    solver, steps = plane_wave_solver(comm, p, N, ROCK, plane_wave, TRAVEL, point=state_pt)
     wall = timed(comm, solver.step, steps)
     own = compat.dof_counts(solver.V)[0]
     exact = plane_wave(compat.dof_coordinates(solver.V)[:own].T, solver.t).T
@@ -251,14 +300,18 @@ def plot_work_precision(rows, png: Path, ranks: int):
 
 def rate_table(rows):
     """Markdown table of the throughput rows."""
-    lines = ["| operator | p | N | DOFs | ranks | DOF·stages/s | per rank | bytes/DOF·stage | bound fraction "
-             "| operator-only fraction |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| operator | p | N | DOFs | ranks | DOF·stages/s | per rank | unknown·steps/s per rank | "
+             "bytes/DOF·stage | bandwidth fraction | operator-only fraction | flops/DOF·stage | "
+             "peak-flop fraction |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
+        steps = r['dof_stages_per_s_per_rank'] / r['stages']
+        fl = (f"{r['flops_per_dof_stage']:.0f} | {r['fraction_of_peak_flops']:.3f}" if "flops_per_dof_stage" in r
+              else "— | —")
         lines.append(f"| {r['operator']} | {r['p']} | {r['N']} | {r['dofs']} | {r['ranks']} | "
                      f"{r['dof_stages_per_s']:.3g} | "
-                     f"{r['dof_stages_per_s_per_rank']:.3g} | {r['bytes_per_dof_stage']:.0f} | "
-                     f"{r['fraction_of_bound']:.2f} | {r['mult_fraction_of_bound']:.2f} |")
+                     f"{r['dof_stages_per_s_per_rank']:.3g} | {steps:.3g} | {r['bytes_per_dof_stage']:.0f} | "
+                     f"{r['fraction_of_bound']:.2f} | {r['mult_fraction_of_bound']:.2f} | {fl} |")
     return "\n".join(lines)
 
 
@@ -287,21 +340,24 @@ def main(argv=None):
     wp_sizes = QUICK_WORK_PRECISION if args.quick else WORK_PRECISION
 
     bandwidth = copy_bandwidth(comm)
+    peak = comm.bcast(peak_flops() if comm.rank == 0 else None, root=0)
     log(comm, f"[bench] {comm.size} rank(s); memory copy bandwidth {bandwidth / 1e9:.2f} GB/s "
-              "(read + write, all ranks)")
+              f"(read + write, all ranks); one core's DGEMM peak {peak / 1e9:.1f} GFlop/s")
     rows = []
     for p, Ns in tp_sizes.items():
         for N in Ns:
             mesh = unit_square(comm, N)
             pair = {}
             for operator in ("matfree", "assembled"):
-                r = throughput_case(comm, p, N, bandwidth, operator, mesh)
+                r = throughput_case(comm, p, N, bandwidth, operator, mesh, peak)
                 rows.append(r)
                 pair[operator] = r["dof_stages_per_s"]
                 log(comm, f"[bench] {operator:9s} p={p} N={N:4d} {r['dofs']:8d} DOFs: step "
                           f"{r['dof_stages_per_s']:.3g} DOF*stages/s ({r['fraction_of_bound']:.2f} of the bound at "
                           f"{r['bytes_per_dof_stage']:.0f} B), operator alone {r['mult_dofs_per_s']:.3g} DOF/s "
-                          f"({r['mult_fraction_of_bound']:.2f}), setup {r['setup_s']:.1f} s")
+                          f"({r['mult_fraction_of_bound']:.2f}), setup {r['setup_s']:.1f} s"
+                          + (f"; {r['flops_per_dof_stage']:.0f} flop/DOF*stage, {r['fraction_of_peak_flops']:.3f} "
+                             "of the DGEMM peak" if "flops_per_dof_stage" in r else ""))
             log(comm, f"[bench]           matrix-free / assembled step rate: {pair['matfree'] / pair['assembled']:.2f}")
     if comm.rank == 0:
         write_csv(out / f"bulk_throughput_n{comm.size}.csv", rows)

@@ -9,6 +9,8 @@ serially and, with the ``mpi`` marker, on 2 ranks (facets on the partition bound
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from mpi4py import MPI
@@ -16,7 +18,8 @@ from mpi4py import MPI
 import exact
 from exact import BOTTOM, LEFT, RIGHT, TOP
 from hydrofrac import CONFINEMENT, ROCK, Material, compat
-from hydrofrac.boundary import Absorbing, PiecewiseLinear, Symmetry, Traction, Velocity
+from hydrofrac.boundary import Absorbing, OuterState, PiecewiseLinear, Slider, Symmetry, Traction, Velocity
+from hydrofrac._jit import njit
 from hydrofrac.solver import Solver
 
 SIGMA0 = ((-CONFINEMENT, 0.0), (0.0, -CONFINEMENT))
@@ -38,11 +41,33 @@ def mesh_data(comm, N=10):
     return mesh, ft, ct, crack
 
 
-def problem(data, p, operator):
+def outer_state(x, t):
+    """A smooth outer state (5, m) that changes in time."""
+    return np.stack([np.sin(3 * x[0] + t), np.cos(2 * x[1]), ROCK.Zd * x[0] * x[1], -ROCK.Zd * (x[0] + t),
+                     ROCK.Zs * np.sin(x[1] - x[0])])
+
+
+ZD, ZS = float(ROCK.Zd), float(ROCK.Zs)
+
+
+@njit
+def outer_state_pt(x, y, t):
+    """:func:`outer_state` at one point, compiled."""
+    return math.sin(3 * x + t), math.cos(2 * y), ZD * x * y, -ZD * (x + t), ZS * math.sin(y - x)
+
+
+def problem(data, p, operator, kinds="loads", point=None):
+    """``kinds``: "loads" (traction with a pressure history, absorbing, symmetry, constant
+    velocity) or "outer" (an outer state, a slider, a velocity history, and a traction-free
+    side without a condition)."""
     mesh, ft, ct, crack = data
     history = PiecewiseLinear((0.0, 1.0), (1e6, 2e6))
-    bcs = [Traction(LEFT, stress=SIGMA0, pressure=history), Absorbing(RIGHT, stress=SIGMA0),
-           Symmetry(BOTTOM), Velocity(TOP, value=(0.1, -0.2))]
+    if kinds == "loads":
+        bcs = [Traction(LEFT, stress=SIGMA0, pressure=history), Absorbing(RIGHT, stress=SIGMA0),
+               Symmetry(BOTTOM), Velocity(TOP, value=(0.1, -0.2))]
+    else:
+        bcs = [OuterState(LEFT, outer_state, point), Slider(RIGHT),
+               Velocity(TOP, value=(0.3, 0.1), history=PiecewiseLinear((0.0, 1.0), (0.5, 2.0)))]
     return Solver(mesh, p, {1: ROCK, 2: MEDIUM2}, cell_tags=ct, facet_tags=ft, bcs=bcs, sigma0=SIGMA0,
                   crack_facets=crack, operator=operator)
 
@@ -66,10 +91,10 @@ def random_rhs(solver, seed=7):
     return compat.function_array_of_vec(out).reshape(-1, 5), X
 
 
-def compare(comm, p):
+def compare(comm, p, kinds="loads", point=None):
     data = mesh_data(comm)
-    a, X = random_rhs(problem(data, p, "assembled"))
-    b, _ = random_rhs(problem(data, p, "matfree"))
+    a, X = random_rhs(problem(data, p, "assembled", kinds))
+    b, _ = random_rhs(problem(data, p, "matfree", kinds, point))
     err = comm.allreduce(float(np.abs(a - b).max()) if a.size else 0.0, op=MPI.MAX)
     scale = comm.allreduce(float(np.abs(a).max()) if a.size else 0.0, op=MPI.MAX)
     return err / scale, scale
@@ -82,11 +107,39 @@ def test_matfree_equals_assembled(p):
     assert rel < RTOL, f"p = {p}: matrix-free vs assembled relative difference {rel:.3e}"
 
 
-@pytest.mark.mpi
 @pytest.mark.parametrize("p", [1, 3])
-def test_matfree_equals_assembled_parallel(p):
+def test_matfree_boundary_kinds_equal_assembled(p):
+    """The boundary kernel's other kinds: an outer state, a slider, a velocity history and a
+    traction-free side without a condition."""
+    rel, scale = compare(MPI.COMM_WORLD, p, "outer")
+    assert scale > 0
+    assert rel < RTOL, f"p = {p}: matrix-free vs assembled relative difference {rel:.3e}"
+
+
+def test_compiled_outer_state_equals_python():
+    """An outer state given as a compiled point function gives the rhs of the Python one; a
+    point function of another state is refused before the run."""
+    data = mesh_data(MPI.COMM_WORLD)
+    a, _ = random_rhs(problem(data, 2, "matfree", "outer"))
+    b, _ = random_rhs(problem(data, 2, "matfree", "outer", point=outer_state_pt))
+    np.testing.assert_allclose(b, a, rtol=0, atol=1e-13 * np.abs(a).max())
+
+    @njit
+    def other(x, y, t):
+        return outer_state_pt(x, y, t + 0.1)
+
+    with pytest.raises(ValueError, match="differ at the boundary nodes"):
+        problem(data, 2, "matfree", "outer", point=other)
+    with pytest.raises(ValueError, match="numba.njit point function"):
+        OuterState(LEFT, outer_state, point=lambda x, y, t: (0.0,) * 5)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("p,kinds", [(1, "loads"), (3, "loads"), (2, "outer")])
+def test_matfree_equals_assembled_parallel(p, kinds):
+    """(The outer state compiled: its check is collective, with ranks that have none of its facets.)"""
     comm = MPI.COMM_WORLD
-    rel, scale = compare(comm, p)
+    rel, scale = compare(comm, p, kinds, outer_state_pt if kinds == "outer" else None)
     assert rel < RTOL, f"p = {p}, {comm.size} ranks: relative difference {rel:.3e}"
 
 
