@@ -3,8 +3,9 @@
 The plane P wave of ``study_work_precision`` (a Gaussian pulse of width 0.12 m crossing the
 unit square for 0.2 m of travel) on both codes, one core each, float64, the same final time:
 
-* DG: P_p, p = 1-3, RK4 at the default CFL, the matrix-free operator, the exact solution as
-  the boundary's outer state; error: the relative energy norm over the unit square;
+* DG: P_p, p = 1-3, RK4 and (p = 2, 3) the low-storage lsrk54, each at its default CFL, the
+  matrix-free operator, the exact solution as the boundary's outer state (compiled); error:
+  the relative energy norm over the unit square;
 * Devito 4.8 (``postprocess/peer_devito.py``, run in Devito's own environment as a child
   process): space orders 2, 4 and 8, leapfrog at Courant number 0.5, the unit square padded
   by a ring that keeps its edges out of the square until the final time; error: the same
@@ -35,17 +36,20 @@ from hydrofrac.postprocess.study_work_precision import DIRECTION, MAT, TRAVEL, W
 
 ROOT = Path(__file__).resolve().parents[1]
 DG = {1: (8, 16, 32, 64), 2: (8, 16, 32), 3: (4, 8, 16, 32)}
+#: the low-storage scheme the time-scheme study measured fastest (docs/benchmarks.md, "Time schemes")
+DG_LSRK = {"lsrk54": {2: (8, 16, 32), 3: (4, 8, 16, 32)}}
+QUICK_DG_LSRK = {"lsrk54": {3: (4, 8)}}
 DEVITO = {2: (16, 32, 64, 128, 256), 4: (16, 32, 64, 128), 8: (16, 32, 64)}
 QUICK_DG = {1: (8, 16), 3: (4, 8)}
 QUICK_DEVITO = {2: (16, 32), 4: (16, 32)}
 TARGETS = (0.1, 0.01, 0.001)
 
 
-def dg_rows(sizes, repeats=3):
+def dg_rows(sizes, repeats=3, scheme="rk4"):
     rows = []
     for p, Ns in sizes.items():
         for N in Ns:
-            runs = [run_dg(MPI.COMM_SELF, p, N) for _ in range(repeats)]
+            runs = [run_dg(MPI.COMM_SELF, p, N, scheme) for _ in range(repeats)]
             best = min(runs, key=lambda r: r["wall_s"])
             rows.append({**best, "unknowns_unit_square": best["dofs"], "apply_wall_s": best["wall_s"]})
     return rows
@@ -103,6 +107,8 @@ def main(argv=None):
     parser.add_argument("--devito-python", default=None, help="the Python of an environment with Devito")
     args = parser.parse_args(argv)
     rows = dg_rows(QUICK_DG if args.quick else DG)
+    for scheme, sizes in (QUICK_DG_LSRK if args.quick else DG_LSRK).items():
+        rows += dg_rows(sizes, scheme=scheme)
     py = devito_python(args.devito_python)
     if py is None:
         print("[study] Devito is not installed (make devito-env): only the DG half ran", flush=True)

@@ -105,12 +105,12 @@ def dg_error(solver):
     return energy_norm_error(solver.mesh, MAT, v, sigma, ve, se, 2 * solver.degree + 4)
 
 
-def run_dg(comm, p, N):
-    solver, steps = plane_wave_solver(comm, p, N, MAT, state, TRAVEL, point=state_pt)
+def run_dg(comm, p, N, scheme="rk4"):
+    solver, steps = plane_wave_solver(comm, p, N, MAT, state, TRAVEL, point=state_pt, scheme=scheme)
     wall = timed_steps(solver, steps)
     err = dg_error(solver)
-    return {"method": f"DG P{p}", "family": "DG", "degree": p, "N": N, "dofs": solver.num_dofs, "steps": steps,
-            "wall_s": wall, "rel_error": err}
+    return {"method": f"DG P{p}" + ("" if scheme == "rk4" else f" {scheme}"), "family": "DG", "degree": p,
+            "scheme": scheme, "N": N, "dofs": solver.num_dofs, "steps": steps, "wall_s": wall, "rel_error": err}
 
 
 def run_cg(comm, k, N, mass="lumped"):
