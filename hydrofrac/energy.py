@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import ufl
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from . import compat
 from .boundary import RADIATING, OuterState, Traction, Velocity, ufl_data
@@ -92,13 +93,15 @@ class EnergyAccount:
         mesh = solver.mesh
         rho, lam, mu = solver.rho, solver.lam, solver.mu
         U, W = ufl.TrialFunction(solver.V), ufl.TestFunction(solver.V)
-        dS = compat.measure("dS", mesh, solver._interior_facet_tags())
-        self.Qd = None
-        if solver.matfree is None:  # (the matrix-free operator has its own kernel for this)
-            Qd = ef.interior_dissipation(U, W, rho, lam, mu, dS(BULK_FACET))
-            self.Qd = _to_baij(compat.assemble_matrix(compat.form(Qd)), ef.NCOMP)
         self.u = compat.function(solver.V, "U")
+        self.Qd = None
         self._power_forms = []
+        self._bdiss_form = None
+        if solver.matfree is not None:  # its kernels compute the rates (MatrixFreeOperator.boundary_rates)
+            return
+        dS = compat.measure("dS", mesh, solver._interior_facet_tags())
+        Qd = ef.interior_dissipation(U, W, rho, lam, mu, dS(BULK_FACET))
+        self.Qd = _to_baij(compat.assemble_matrix(compat.form(Qd)), ef.NCOMP)
         bdiss = None  # upwind dissipation on exterior facets (one form, one reduction)
         s0 = ufl.as_matrix(solver.sigma0.tolist())
         self._hist_const = {}
@@ -154,6 +157,15 @@ class EnergyAccount:
         """(power in at loads, power out at radiating boundaries, upwind dissipation rate on
         interior and exterior facets)."""
         s = self.solver
+        if s.matfree is not None:
+            if s.comm.size > 1:
+                s.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            with s.x.localForm() as xl:
+                X = xl.array_r
+                r = np.array(s.matfree.boundary_rates(X, s.t, s.sigma0))
+                r[2] += s.matfree.dissipation_rate(X)
+            s.comm.Allreduce(MPI.IN_PLACE, r, op=MPI.SUM)
+            return float(r[0]), float(r[1]), float(r[2])
         # copy through the Function's own array (not a PETSc wrapper of it: a wrapper that
         # outlives its Function corrupts memory when solvers are replaced after a remesh)
         own = compat.dof_counts(s.V)[0] * ef.NCOMP
@@ -172,12 +184,9 @@ class EnergyAccount:
                 p_rad -= val
             else:
                 p_in += val
-        if s.matfree is not None:  # (ghosts updated above)
-            diss = s.comm.allreduce(s.matfree.dissipation_rate(u_arr), op=MPI.SUM)
-        else:
-            Qx = s._work[-2]
-            self.Qd.mult(s.x, Qx)
-            diss = Qx.dot(s.x)
+        Qx = s._work[-2]
+        self.Qd.mult(s.x, Qx)
+        diss = Qx.dot(s.x)
         if self._bdiss_form is not None:
             diss += compat.assemble_scalar(self._bdiss_form, s.comm)
         return p_in, p_rad, diss

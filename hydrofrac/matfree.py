@@ -205,6 +205,53 @@ def _kernels(nb, nk, contig=False):
                     R[c, j, m] += L * acc
 
     @njit
+    def boundary_energy(X, dofs, bcells, bcodes, normal, length, kinds, G, radiating, fnodes, Mf, Zd, Zs, s0xx,
+                        s0yy, s0xy):
+        """(power in, power out through radiating facets, upwind dissipation) of the listed
+        exterior facets: int (s* - sigma0 n).v* and int (s* - s).(v* - v) (the quadratic forms
+        of :func:`hydrofrac.forms.elastodynamics.boundary_power` and ``boundary_dissipation``),
+        from the node values of the corrections (:func:`hydrofrac.riemann.boundary_pt`) and
+        the facet mass matrix: exact, the integrands being products of two degree-p traces."""
+        A = np.empty((nk, 2))  # s* - sigma0 n (n, t)
+        V = np.empty((nk, 2))  # v*
+        dS_ = np.empty((nk, 2))
+        dV = np.empty((nk, 2))
+        p_in = 0.0
+        p_out = 0.0
+        diss = 0.0
+        for f in range(bcells.shape[0]):
+            c, kc = bcells[f], bcodes[f]
+            nx, ny = normal[f, 0], normal[f, 1]
+            Zn, Zt = Zd[c], Zs[c]
+            kn, kt = kinds[f, 0], kinds[f, 1]
+            t0x, t0y = s0xx * nx + s0xy * ny, s0xy * nx + s0yy * ny
+            s0n, s0t = t0x * nx + t0y * ny, -t0x * ny + t0y * nx
+            for k in range(nk):
+                i = 5 * (nb * c + fnodes[kc, k]) if contig else 5 * dofs[c, fnodes[kc, k]]
+                vx, vy = X[i], X[i + 1]
+                tx, ty = X[i + 2] * nx + X[i + 4] * ny, X[i + 4] * nx + X[i + 3] * ny
+                vn, vt, sn, st = vx * nx + vy * ny, -vx * ny + vy * nx, tx * nx + ty * ny, -tx * ny + ty * nx
+                dsn, dvn = boundary_pt(kn, vn, sn, Zn, G[f, k, 0], G[f, k, 2])
+                dst, dvt = boundary_pt(kt, vt, st, Zt, G[f, k, 1], G[f, k, 3])
+                A[k, 0], A[k, 1] = sn + dsn - s0n, st + dst - s0t
+                V[k, 0], V[k, 1] = vn + dvn, vt + dvt
+                dS_[k, 0], dS_[k, 1] = dsn, dst
+                dV[k, 0], dV[k, 1] = dvn, dvt
+            pw = 0.0
+            dd = 0.0
+            for k in range(nk):
+                for m in range(nk):
+                    pw += Mf[k, m] * (A[k, 0] * V[m, 0] + A[k, 1] * V[m, 1])
+                    dd += Mf[k, m] * (dS_[k, 0] * dV[m, 0] + dS_[k, 1] * dV[m, 1])
+            L = length[f]
+            if radiating[f]:
+                p_out -= L * pw
+            else:
+                p_in += L * pw
+            diss += L * dd
+        return p_in, p_out, diss
+
+    @njit
     def facet_dissipation(X, dofs, fcells, fcodes, fown, normal, length, fnodes, Mf, Zd, Zs):
         """Rate of energy dissipated by the upwind flux on the owned listed facets:
         int sum_i Z_i+ Z_i- / (Z_i+ + Z_i-) [[v_i]]^2 + [[s_i]]^2 / (Z_i+ + Z_i-), i = n, t
@@ -261,7 +308,7 @@ def _kernels(nb, nk, contig=False):
             strain += absdet[c] * es
         return 0.5 * kin, 0.5 * strain
 
-    return volume_and_inverse, facet_fluxes, facet_dissipation, cell_energies, boundary_fluxes
+    return volume_and_inverse, facet_fluxes, facet_dissipation, cell_energies, boundary_fluxes, boundary_energy
 
 
 def facet_nodes(ref, tables, qw):
@@ -446,8 +493,8 @@ class MatrixFreeOperator:
                     tables[3 * i + j] = ref.tabulate(pts)
         self.tables = tables
         self.fnodes, self.Mf = facet_nodes(ref, tables, self.qw)
-        self._volume, self._facets, self._dissipation, self._energies, self._boundary = _kernels(
-            nb, self.fnodes.shape[1], self.contiguous)
+        (self._volume, self._facets, self._dissipation, self._energies, self._boundary,
+         self._boundary_energy) = _kernels(nb, self.fnodes.shape[1], self.contiguous)
         c_off, c_arr = compat.connectivity(mesh, tdim - 1, tdim)
         facets = np.asarray(facets, dtype=np.int64)
         # facets of the outer ghost layer see one cell here: a ghost, so nothing to add
@@ -485,7 +532,7 @@ class MatrixFreeOperator:
         (``bc_of[i]``, one of ``bcs``; None: traction-free), applied by :meth:`begin` with
         their data at the stage time (:func:`hydrofrac.boundary.point_data`; outer states
         evaluated at the facet nodes).  Collective (``bcs``: the same on every rank)."""
-        from .boundary import OuterState, point_data
+        from .boundary import RADIATING, OuterState, point_data
         from .riemann import BOUNDARY_KINDS
         facets = np.asarray(facets, dtype=np.int64)
         cells = compat.facet_cells(self.mesh, facets).astype(np.int64)
@@ -497,6 +544,7 @@ class MatrixFreeOperator:
         self.bcells, self.bcodes = np.ascontiguousarray(cells), np.ascontiguousarray(codes, dtype=np.int64)
         self.bnormal, self.blength = np.ascontiguousarray(n), np.ascontiguousarray(length)
         self.bkinds = np.zeros((facets.size, 2), dtype=np.int64)  # traction-free: kind 0, data 0
+        self.bradiating = np.zeros(facets.size, dtype=np.bool_)  # power counted as radiated (energy budget)
         G0 = np.zeros((facets.size, 4))
         self._bhist, self._bouter = [], []
         groups = {id(bc): (bc, []) for bc in bcs}  # every condition on every rank (collective checks)
@@ -506,6 +554,7 @@ class MatrixFreeOperator:
         for bc, rows in groups.values():
             rows = np.asarray(rows, dtype=np.int64)
             self.bkinds[rows] = [BOUNDARY_KINDS[k] for k in bc.kinds]
+            self.bradiating[rows] = isinstance(bc, RADIATING)
             if isinstance(bc, OuterState):
                 nodes = self.dofs[cells[rows][:, None], self.fnodes[codes[rows]]]  # (m, nk) dof blocks
                 pts = np.ascontiguousarray(self.dof_x[nodes.reshape(-1)].T)
@@ -542,6 +591,16 @@ class MatrixFreeOperator:
         """This rank's share of the interior upwind dissipation rate [W/m] (ghosts current)."""
         return self._dissipation(xloc, self.dofs, self.fcells, self.fcodes, self.fown, self.normal, self.length,
                                  self.fnodes, self.Mf, self.Zd, self.Zs)
+
+    def boundary_rates(self, xloc, t, sigma0):
+        """This rank's (power in, power radiated out, upwind dissipation) of the boundary
+        facets at time t [W/m] (``xloc``: local form incl. ghosts)."""
+        if not self.bcells.size:
+            return 0.0, 0.0, 0.0
+        self.boundary_data(t)
+        return self._boundary_energy(xloc, self.dofs, self.bcells, self.bcodes, self.bnormal, self.blength,
+                                     self.bkinds, self.G, self.bradiating, self.fnodes, self.Mf, self.Zd, self.Zs,
+                                     float(sigma0[0, 0]), float(sigma0[1, 1]), float(sigma0[0, 1]))
 
     def energies(self, xloc, x0loc):
         """This rank's (kinetic, strain) energy of x - x0 [J/m]."""

@@ -337,9 +337,6 @@ class Solver:
             self.matfree = MatrixFreeOperator(self, self._bulk_facets())
             facets, bc_of = self._boundary_facets(btags)
             self.matfree.set_boundary(facets, bc_of, self.bcs)
-            for bc in self.bcs:  # the outer states' functions, for the energy budget's boundary power
-                if isinstance(bc, OuterState):
-                    self.outer.append((bc, compat.function(V, f"outer_{bc.tag}"), None, self._outer_points(bc.tag)))
             self._work = [self.x_like() for _ in range(2 if self.scheme in LOW_STORAGE else num_stages(self.scheme) + 2)]
             self.account = EnergyAccount(self, ds, free_tag, n)
             return

@@ -143,19 +143,25 @@ def test_matfree_equals_assembled_parallel(p, kinds):
     assert rel < RTOL, f"p = {p}, {comm.size} ranks: relative difference {rel:.3e}"
 
 
-@pytest.mark.parametrize("p", [1, 3])
-def test_matfree_energy_terms_equal_assembled(p):
-    """Kinetic and strain energy (cell kernel vs the assembled mass matrix) and the interior
-    upwind dissipation rate (facet kernel vs the assembled quadratic form) agree; both are
-    sums of positive terms, so round-off is relative to the value."""
+@pytest.mark.parametrize("p,kinds", [(1, "loads"), (3, "loads"), (2, "outer")])
+def test_matfree_energy_terms_equal_assembled(p, kinds):
+    """Kinetic and strain energy (cell kernel vs the assembled mass matrix), the upwind
+    dissipation rate on interior and boundary facets (facet kernels vs the assembled quadratic
+    forms) and the boundary power in and out (boundary kernel vs the assembled power forms,
+    with the histories and the outer state at t = 0.5) agree.  The energies and the
+    dissipation are sums of positive terms, so round-off is relative to the value; the powers
+    are signed sums, compared relative to the sum of their terms' sizes, bounded by the
+    dissipation's scale."""
     comm = MPI.COMM_WORLD
     data = mesh_data(comm)
     vals = []
     for operator in ("assembled", "matfree"):
-        solver = problem(data, p, operator)
+        solver = problem(data, p, operator, kinds)
         random_rhs(solver)  # sets the random state
+        solver.t = 0.5
         kin, strain = solver.energies()
-        _, _, diss = solver.account.rates()
-        vals.append(np.array([kin, strain, diss]))
-    assert np.all(vals[0] > 0)
-    np.testing.assert_allclose(vals[1], vals[0], rtol=1e-12)
+        p_in, p_out, diss = solver.account.rates()
+        vals.append(np.array([kin, strain, diss, p_in, p_out]))
+    assert np.all(vals[0][:3] > 0) and vals[0][3] != 0 and vals[0][4] != 0
+    np.testing.assert_allclose(vals[1][:3], vals[0][:3], rtol=1e-12)
+    np.testing.assert_allclose(vals[1][3:], vals[0][3:], rtol=1e-10)
