@@ -16,10 +16,16 @@ that :func:`hydrofrac.compat.gmsh_model_to_mesh` distributes like any other.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
+
+try:
+    import numba
+except ImportError:  # pragma: no cover
+    numba = None
 
 #: Gmsh element types
 _LINE, _TRIANGLE = 1, 2
@@ -34,6 +40,35 @@ class MeshArrays:
     tris: np.ndarray
     lines: Dict[int, np.ndarray]
     polylines: Dict[int, np.ndarray] = field(default_factory=dict)
+
+
+def _nearest_sq(x, y, pts):
+    """Squared distance from (x, y) to the nearest of ``pts`` (m, 2); inf for none."""
+    best = np.inf
+    for i in range(pts.shape[0]):
+        dx, dy = pts[i, 0] - x, pts[i, 1] - y
+        d = dx * dx + dy * dy
+        if d < best:
+            best = d
+    return best
+
+
+def _size_at(x, y, pts, tips, wellbore_radius, h_crack, h_far, span, h_tip, tip_radius, grading):
+    """:class:`SizeLaw`'s ``sizes`` at one point (the nearest sample by brute force: the same
+    distance as the tree's, sqrt of the smallest squared distance)."""
+    d = math.sqrt(_nearest_sq(x, y, pts))
+    if wellbore_radius > 0:
+        d = min(d, abs(math.hypot(x, y) - wellbore_radius))
+    h = h_crack + (h_far - h_crack) * min(max((d - h_crack) / span, 0.0), 1.0) if d < math.inf else h_far
+    if tips.shape[0]:
+        dt = math.sqrt(_nearest_sq(x, y, tips))
+        h = min(h, h_tip + (h_far - h_tip) * min(max((dt - tip_radius) / grading, 0.0), 1.0))
+    return h
+
+
+if numba is not None:  # (no fast-math: the distances round as the tree's do)
+    _nearest_sq = numba.njit(cache=True)(_nearest_sq)
+    _size_at = numba.njit(cache=True)(_size_at)
 
 
 @dataclass(frozen=True)
@@ -79,21 +114,21 @@ class SizeLaw:
                                * np.clip((dt - self.tip_radius) / self.grading, 0.0, 1.0))
             return h
 
-        import math
+        tip_pts = np.asarray(tips, dtype=float).reshape(-1, 2) if tip_tree is not None else np.zeros((0, 2))
+        law = (float(self.wellbore_radius), float(self.h_crack), float(self.h_far), float(span),
+               float(self.h_tip or 0.0), float(self.tip_radius), float(self.grading))
 
-        def scalar(x, y):  # one Gmsh query: plain floats are 3x faster than the arrays above
-            d = float(tree.query((x, y))[0]) if tree is not None else math.inf
-            if self.wellbore_radius > 0:
-                d = min(d, abs(math.hypot(x, y) - self.wellbore_radius))
-            h = (self.h_crack + (self.h_far - self.h_crack) * min(max((d - self.h_crack) / span, 0.0), 1.0)
-                 if d < math.inf else self.h_far)
-            if tip_tree is not None:
-                dt = float(tip_tree.query((x, y))[0])
-                h = min(h, self.h_tip + (self.h_far - self.h_tip)
-                        * min(max((dt - self.tip_radius) / self.grading, 0.0), 1.0))
-            return h
+        def scalar_near(lo, hi):
+            """The law at one point (x, y) in the box lo..hi, compiled (a tree query costs 20 us a
+            call): with the samples that can be nearest there, those within the grading's reach
+            (farther ones give h_far, as no sample does)."""
+            def near(p, reach):
+                keep = np.all((p >= np.asarray(lo) - reach) & (p <= np.asarray(hi) + reach), axis=1)
+                return np.ascontiguousarray(p[keep])
+            ps, ts = near(pts, span + self.h_crack), near(tip_pts, self.tip_radius + self.grading)
+            return lambda x, y: _size_at(x, y, ps, ts, *law)
 
-        sizes.scalar = scalar
+        sizes.scalar_near = scalar_near
         return sizes
 
 
@@ -386,7 +421,9 @@ def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius
         if abs(c) not in all_crack:
             model.mesh.setTransfiniteCurve(abs(c), 2)
     # (Gmsh 4.8 passes (dim, tag, x, y, z), later versions also the size it would take)
-    model.mesh.setSizeCallback(lambda dim, tag, x, y, z, *lc: fn.scalar(x, y))
+    box = model.getBoundingBox(-1, -1)
+    scalar = fn.scalar_near(box[:2], box[3:5])
+    model.mesh.setSizeCallback(lambda dim, tag, x, y, z, *lc: scalar(x, y))
     gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
     gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
     gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)

@@ -19,7 +19,7 @@ from hydrofrac import ROCK, compat
 from hydrofrac.boundary import Absorbing
 from hydrofrac.interface import Crack, Interface, crack_facet_indices
 from hydrofrac.meshes.fractures import NATURAL, OUTER, PATH, Domain, Fracture, fracture_mesh
-from hydrofrac.meshes.patch import _edge_key
+from hydrofrac.meshes.patch import SizeLaw, _edge_key
 from hydrofrac.network import CrackLine, CrackNetwork
 from hydrofrac.solver import Solver
 from hydrofrac.transfer import continue_run, transfer_fields
@@ -130,3 +130,21 @@ def test_local_remeshing_restarts_where_the_straight_run_ends(tmp_path, run_comm
         assert r["accuracy"][key] == s["accuracy"][key], key
     for key in ("kinetic", "strain", "work_in", "balance_error"):
         assert r["energy"][key] == pytest.approx(s["energy"][key], rel=1e-12, abs=1e-12), key
+
+
+def test_size_law_point_query_equals_the_vectorised_law():
+    """The compiled one-point size query Gmsh calls inside a patch gives the vectorised law's
+    sizes bit for bit (near cracks, near tips, at the wellbore, and beyond the grading, where
+    the samples it drops would not be nearest)."""
+    law = SizeLaw(h_crack=0.05, h_far=1.0, grading=2.0, wellbore_radius=0.1, h_tip=0.02, tip_radius=0.1)
+    rng = np.random.default_rng(1)
+    lines = {1: np.cumsum(rng.normal(size=(30, 2)), axis=0), 2: np.cumsum(rng.normal(size=(20, 2)), axis=0)}
+    sizes = law.sampler(lines, tips=[(0.3, 0.4), (2.0, -1.0)])
+    got = {}
+    for lo, hi in [((-5.0, -5.0), (5.0, 5.0)), ((0.0, 0.0), (0.5, 0.5)), ((-20.0, -20.0), (-19.0, -19.0))]:
+        xy = rng.uniform(lo, hi, size=(500, 2))
+        one = sizes.scalar_near(lo, hi)
+        got[lo] = np.array([one(x, y) for x, y in xy])
+        assert np.array_equal(got[lo], sizes(xy))
+    assert got[(-5.0, -5.0)].min() < 0.1 and got[(-5.0, -5.0)].max() == law.h_far  # graded, and far away
+    assert np.all(got[(-20.0, -20.0)] == law.h_far)
