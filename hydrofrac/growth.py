@@ -417,17 +417,28 @@ def segment_damage(iface, tag, p0, p1):
     """Mean damage (all ranks) of the Gauss points of crack ``tag`` on the segment p0 -> p1:
     a growth driver advances a tip only once its last inserted segment has debonded, so that
     growth speed is set by the damage law, not by how often the criterion is evaluated."""
-    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
-    seg = p1 - p0
-    L2 = float(seg @ seg)
+    return segment_damages(iface, [(tag, p0, p1)])[0]
+
+
+def segment_damages(iface, segments):
+    """:func:`segment_damage` of each (tag, p0, p1) of ``segments``, in one reduction (none
+    for no segments: the paths, and so the segments, are the same on every rank)."""
+    if not segments:
+        return []
     pts = iface.points.reshape(-1, 2)
-    on_tag = np.repeat(iface.crack_tag == tag, iface.nq)
-    u = (pts - p0) @ seg / L2
-    d = np.linalg.norm(pts - (p0 + np.clip(u, 0, 1)[:, None] * seg), axis=1)
-    sel = on_tag & (u >= 0) & (u <= 1) & (d <= 1e-9 * max(1.0, np.sqrt(L2)))
-    D = iface.state[0].reshape(-1)[sel]
-    tot = iface.solver.comm.allreduce(np.array([D.sum(), D.size], dtype=float), op=MPI.SUM)
-    return tot[0] / tot[1] if tot[1] else float("nan")
+    Dall = iface.state[0].reshape(-1)
+    local = np.zeros((len(segments), 2))
+    for k, (tag, p0, p1) in enumerate(segments):
+        p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+        seg = p1 - p0
+        L2 = float(seg @ seg)
+        on_tag = np.repeat(iface.crack_tag == tag, iface.nq)
+        u = (pts - p0) @ seg / L2
+        d = np.linalg.norm(pts - (p0 + np.clip(u, 0, 1)[:, None] * seg), axis=1)
+        D = Dall[on_tag & (u >= 0) & (u <= 1) & (d <= 1e-9 * max(1.0, np.sqrt(L2)))]
+        local[k] = D.sum(), D.size
+    tot = iface.solver.comm.allreduce(local, op=MPI.SUM)
+    return [t[0] / t[1] if t[1] else float("nan") for t in tot]
 
 
 def check_interval(solver, check_every):
@@ -588,8 +599,10 @@ class GrowthDriver:
             return None
         import time as _time
         t_crit = _time.perf_counter()
-        ready = [len(p) < 2 or segment_damage(self.iface, self.tags[i], p[-2], p[-1]) >= self.ready_damage
-                 for i, p in enumerate(self.paths)]
+        extended = [i for i, p in enumerate(self.paths) if len(p) >= 2]
+        damage = dict(zip(extended, segment_damages(self.iface, [(self.tags[i], self.paths[i][-2], self.paths[i][-1])
+                                                                 for i in extended])))
+        ready = [i not in damage or damage[i] >= self.ready_damage for i in range(len(self.paths))]
         if self.max_speed is not None:  # a tip advances da no sooner than da / max_speed after its last step
             last = {}
             for t, i, _, _ in self.events:
