@@ -494,38 +494,25 @@ class Interface:
 
     def advance(self, z0, inc):
         """The state z0 + inc, ``inc`` being a stage's or a step's Runge-Kutta combination of
-        the rates (None: none), admissible: damage in [D_n, 1]; the opening, where the free
-        opening (the rates' last row, D [[v_S^1]]) closes, by the exact closing flow through
-        the contact band (:func:`hydrofrac.riemann.closing_flow_pt`;
-        ``ContactParams.local_flow``), which never passes the floor delta'_0 delta~ at any step;
-        elsewhere by the Runge-Kutta sum.  The opening clip of :meth:`constrain` stays as a
-        counted safety net."""
-        z = z0.copy()
-        if inc is None:
-            return self.constrain(z)
-        z += inc[:3]
+        the rates (None: none), admissible: damage in [D_n, 1] (never decreases); the opening,
+        where the free opening (the rates' last row, D [[v_S^1]]) closes, by the exact closing
+        flow through the contact band (:func:`hydrofrac.riemann.closing_flow_pt`;
+        ``ContactParams.local_flow``), which never passes the floor delta'_0 delta~ at any
+        step; elsewhere by the Runge-Kutta sum.  The opening clip at the floor (the maximum
+        penetration, where eta = 1 and d(delta)/dt = 0) stays as a counted safety net.  One
+        compiled pass (:func:`hydrofrac.kernels.advance_state`)."""
         c_ = self.contact
-        if c_.regularized and c_.penalty is None and c_.local_flow and z.shape[1]:
-            dxi = inc[3]
-            closing = dxi < 0
-            if closing.any():
-                band = np.broadcast_to(abs(c_.delta0) * self.delta_scale[:, None], dxi.shape)
-                z[1][closing] = rm.closing_flow(z0[1][closing], dxi[closing], band[closing])
-        return self.constrain(z)
-
-    def constrain(self, z):
-        """Damage stays in [D_n, 1] (never decreases); the opening never goes below the
-        maximum penetration delta'_0 delta~ (where eta = 1 and d(delta)/dt = 0)."""
-        z = z.copy()
-        z[0] = np.clip(z[0], self.state[0], 1.0)
-        if self.contact.regularized and self.contact.penalty is None and self.contact.clip:
-            floor = self.contact.delta0 * self.delta_scale[:, None]
-            below = z[1] < floor
-            if below.any():  # the dynamics overshot the permitted penetration: count it
-                self.clip_count += int(below.sum())
-                depth = (floor - z[1])[below] / np.abs(np.broadcast_to(floor, z[1].shape)[below])
-                self.clip_depth = max(self.clip_depth, float(depth.max()))
-                z[1] = np.maximum(z[1], floor)
+        free = c_.regularized and c_.penalty is None
+        if inc is None:
+            inc = np.zeros((4,) + z0.shape[1:])
+        elif inc.shape[0] < 4:  # (no free-opening row: no closing flow)
+            inc = np.concatenate([inc, np.zeros((4 - inc.shape[0],) + z0.shape[1:])])
+        z, count, depth = kernels.advance_state(np.ascontiguousarray(z0), np.ascontiguousarray(inc), self.state[0],
+                                                self.delta_scale, 0.0 if c_.delta0 is None else float(c_.delta0),
+                                                bool(free and c_.local_flow), bool(free and c_.clip))
+        if count:  # the dynamics overshot the permitted penetration: count it
+            self.clip_count += int(count)
+            self.clip_depth = max(self.clip_depth, float(depth))
         return z
 
     def end_step(self, x, t, dt):

@@ -7,6 +7,8 @@ their Gauss points per Runge-Kutta stage.
   the flux corrections ``(s* - s).w + (v* - v).(tau n)`` of both sides integrated into a
   residual vector; the state rates (damage, opening, slip);
 * :func:`interface_targets`: the same targets stored per point (output, energy terms);
+* :func:`advance_state`: a stage's or step's state from its increment, admissible (the
+  exact closing flow through the contact band, damage in [D_n, 1], the counted opening clip);
 * :func:`apply_block_inverse` multiplies the residual of the touched cells by their
   closed-form inverse mass blocks.
 
@@ -22,7 +24,7 @@ from collections import namedtuple
 import numpy as np
 
 from ._jit import njit, prefetch
-from .riemann import (bonded_pt, combine_point, damage_rate_pt, effective_stress_pt, eta_exact_pt,
+from .riemann import (bonded_pt, closing_flow_pt, combine_point, damage_rate_pt, effective_stress_pt, eta_exact_pt,
                       eta_regularized_pt, macaulay_pt, penalty_traction_pt, separation_jump_pt,
                       target_damage_pt)
 
@@ -270,3 +272,31 @@ def apply_block_inverse(out, r, cells, dofs, Mref_inv, Binv):
             base = 5 * dofs[c, a]
             for k in range(5):
                 out[base + k] += res[a, k]
+
+
+@njit
+def advance_state(z0, inc, D_n, delta_scale, delta0, flow, clip):
+    """The interface state z0 + inc (damage, opening, slip; (3, nf, nq)), admissible, in one
+    pass (:meth:`hydrofrac.interface.Interface.advance`): where ``flow`` and the free opening
+    closes (inc[3] < 0), the opening by the exact closing flow through the band
+    |delta'_0| delta~ (:func:`hydrofrac.riemann.closing_flow_pt`); damage clipped to
+    [D_n, 1]; with ``clip``, the opening held at the floor delta'_0 delta~.  Returns
+    (z, openings clipped, the deepest clip relative to the floor)."""
+    z = np.empty_like(z0)
+    count = 0
+    depth = 0.0
+    for f in range(z0.shape[1]):
+        band = abs(delta0) * delta_scale[f]
+        floor = delta0 * delta_scale[f]
+        for q in range(z0.shape[2]):
+            z[0, f, q] = min(max(z0[0, f, q] + inc[0, f, q], D_n[f, q]), 1.0)
+            z[2, f, q] = z0[2, f, q] + inc[2, f, q]
+            op = z0[1, f, q] + inc[1, f, q]
+            if flow and inc[3, f, q] < 0:
+                op = closing_flow_pt(z0[1, f, q], inc[3, f, q], band)
+            if clip and op < floor:
+                count += 1
+                depth = max(depth, (floor - op) / abs(floor))
+                op = floor
+            z[1, f, q] = op
+    return z, count, depth

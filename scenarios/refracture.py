@@ -125,7 +125,10 @@ class RefractureMonitor(Monitor):
         fields = iface.fields()
         net = hyd.network[:, None] * iface.weights
         sep = comm.allreduce(float(((fields["mode"] == MODE_SEPARATED) * net).sum()), op=MPI.SUM)
-        closed = comm.allreduce(float(((iface.state[1] <= 0) * net).sum()), op=MPI.SUM)
+        # closed: at or past contact, delta <= 0 up to round-off (1e-9 delta~: a face that never
+        # opened has delta = 0, and the last bits of a sum must not move it out of contact)
+        closed = comm.allreduce(float(((iface.state[1] <= 1e-9 * iface.delta_scale[:, None]) * net).sum()),
+                                op=MPI.SUM)
         tot = comm.allreduce(float(net.sum()), op=MPI.SUM)
         self.sep_fraction.append((t, sep / max(tot, 1e-300), closed / max(tot, 1e-300)))
         if t >= self.t_off:
