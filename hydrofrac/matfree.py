@@ -46,6 +46,19 @@ def _node_jumps(X, b, e, nx, ny):
     return j0 * nx + j1 * ny, -j0 * ny + j1 * nx, tx * nx + ty * ny, -tx * ny + ty * nx
 
 
+@njit
+def _boundary_node(X, i, nx, ny, kn, kt, Zn, Zt, G, f, k):
+    """The interior trace at the dof block X[i:i+5] in the facet frame (v_n, v_t, s_n, s_t)
+    and the corrections (s* - s, v* - v) of both components against boundary facet f's
+    outer data at its node k (:func:`hydrofrac.riemann.boundary_pt`)."""
+    vx, vy = X[i], X[i + 1]
+    tx, ty = X[i + 2] * nx + X[i + 4] * ny, X[i + 4] * nx + X[i + 3] * ny
+    vn, vt, sn, st = vx * nx + vy * ny, -vx * ny + vy * nx, tx * nx + ty * ny, -tx * ny + ty * nx
+    dsn, dvn = boundary_pt(kn, vn, sn, Zn, G[f, k, 0], G[f, k, 2])
+    dst, dvt = boundary_pt(kt, vt, st, Zt, G[f, k, 1], G[f, k, 3])
+    return vn, vt, sn, st, dsn, dvn, dst, dvt
+
+
 @functools.lru_cache(maxsize=None)
 def _kernels(nb, nk, contig=False):
     """The (volume + inverse mass, interior facet flux, facet dissipation, cell energies)
@@ -188,10 +201,7 @@ def _kernels(nb, nk, contig=False):
             kn, kt = kinds[f, 0], kinds[f, 1]
             for k in range(nk):
                 i = 5 * (nb * c + fnodes[kc, k]) if contig else 5 * dofs[c, fnodes[kc, k]]
-                vx, vy = X[i], X[i + 1]
-                tx, ty = X[i + 2] * nx + X[i + 4] * ny, X[i + 4] * nx + X[i + 3] * ny
-                dsn, dvn = boundary_pt(kn, vx * nx + vy * ny, tx * nx + ty * ny, Zn, G[f, k, 0], G[f, k, 2])
-                dst, dvt = boundary_pt(kt, -vx * ny + vy * nx, -tx * ny + ty * nx, Zt, G[f, k, 1], G[f, k, 3])
+                _, _, _, _, dsn, dvn, dst, dvt = _boundary_node(X, i, nx, ny, kn, kt, Zn, Zt, G, f, k)
                 dvx, dvy = dvn * nx - dvt * ny, dvn * ny + dvt * nx
                 F[k, 0], F[k, 1] = dsn * nx - dst * ny, dsn * ny + dst * nx
                 F[k, 2], F[k, 3], F[k, 4] = dvx * nx, dvy * ny, dvx * ny + dvy * nx
@@ -228,11 +238,7 @@ def _kernels(nb, nk, contig=False):
             s0n, s0t = t0x * nx + t0y * ny, -t0x * ny + t0y * nx
             for k in range(nk):
                 i = 5 * (nb * c + fnodes[kc, k]) if contig else 5 * dofs[c, fnodes[kc, k]]
-                vx, vy = X[i], X[i + 1]
-                tx, ty = X[i + 2] * nx + X[i + 4] * ny, X[i + 4] * nx + X[i + 3] * ny
-                vn, vt, sn, st = vx * nx + vy * ny, -vx * ny + vy * nx, tx * nx + ty * ny, -tx * ny + ty * nx
-                dsn, dvn = boundary_pt(kn, vn, sn, Zn, G[f, k, 0], G[f, k, 2])
-                dst, dvt = boundary_pt(kt, vt, st, Zt, G[f, k, 1], G[f, k, 3])
+                vn, vt, sn, st, dsn, dvn, dst, dvt = _boundary_node(X, i, nx, ny, kn, kt, Zn, Zt, G, f, k)
                 A[k, 0], A[k, 1] = sn + dsn - s0n, st + dst - s0t
                 V[k, 0], V[k, 1] = vn + dvn, vt + dvt
                 dS_[k, 0], dS_[k, 1] = dsn, dst
