@@ -73,9 +73,9 @@ class BlowUpError(RuntimeError):
     """The run became unstable (NaN or energy growth); the last good state is kept."""
 
 
-def cfl_default(scheme):
-    from .solver import CFL_DEFAULT
-    return CFL_DEFAULT[scheme]
+def cfl_default(scheme, degree):
+    from .solver import default_cfl
+    return default_cfl(scheme, degree)
 
 
 class EnergyAccount:
@@ -235,7 +235,11 @@ class EnergyAccount:
         scale = e.initial + e.inflow_total
         bound = 1.5 * scale + 1e-12 * (1.0 + abs(e.initial))
         recent = self.recent_balance
-        recent.append(e.balance_error)
+        # ADER's step exchanges energy through its predictor, not through the states the budget's
+        # rates are sampled from: on rough data its dissipation differs from theirs by far more than
+        # 2 % per few steps (tests/test_bulk.py::test_cfl_*), so there the watched quantity is the
+        # energy beyond everything that flowed in, which only an instability makes grow
+        recent.append(e.total - e.inflow_total if s.scheme == "ader" else e.balance_error)
         if len(recent) > BLOWUP_WINDOW + 1:
             recent.pop(0)
         # energy created beyond the budget in every one of the last steps (an instability
@@ -248,5 +252,5 @@ class EnergyAccount:
                 f"initial + inflow {e.initial + e.inflow_total:.4g} J/m, energy-balance error {e.balance_error:.4g} "
                 f"J/m (the bound is {BLOWUP_BALANCE:.0%} of the energy). The time step dt = {s.dt:.4g} s "
                 f"(CFL {s.dt / (s.h_over_c_min / (2 * s.degree + 1)):.3g}) is too large for this mesh "
-                f"and scheme; use a CFL constant <= {cfl_default(s.scheme)} (the stable default)")
+                f"and scheme; use a CFL constant <= {cfl_default(s.scheme, s.degree)} (the stable default)")
 

@@ -26,7 +26,7 @@ import numpy as np
 from mpi4py import MPI
 
 from . import compat
-from ._jit import HAVE_NUMBA, njit
+from ._jit import HAVE_NUMBA, njit, njit_inline
 from .element import line_quadrature, triangle_quadrature
 from .riemann import bonded_jump_pt, boundary_pt
 
@@ -66,6 +66,70 @@ def _kernels(nb, nk, contig=False):
     constants: LLVM then unrolls the small loops (2-3x faster than with run-time sizes at
     p = 1-3; numba caches each set)."""
 
+    @njit_inline
+    def load(u, X, dofs, c):
+        for j in range(nb):
+            base = 5 * (nb * c + j) if contig else 5 * dofs[c, j]
+            for k in range(5):
+                u[j, k] = X[base + k]
+
+    @njit_inline
+    def strong_volume(r, u, g0, g1, S0, S1, Jinv, c):
+        """r = the strong-form volume terms of cell c's polynomial u, per reference basis
+        function: (div sigma, grad v) in the velocity-stress layout, tested on phi_i."""
+        for i in range(nb):
+            for k in range(5):
+                s0 = 0.0
+                s1 = 0.0
+                for j in range(nb):
+                    s0 += S0[i, j] * u[j, k]
+                    s1 += S1[i, j] * u[j, k]
+                g0[i, k] = s0
+                g1[i, k] = s1
+        j00, j01, j10, j11 = Jinv[c, 0, 0], Jinv[c, 0, 1], Jinv[c, 1, 0], Jinv[c, 1, 1]
+        for i in range(nb):
+            # d/dx = Jinv[0,0] d/dX0 + Jinv[1,0] d/dX1 ; d/dy = Jinv[0,1] d/dX0 + Jinv[1,1] d/dX1
+            dx_vx = j00 * g0[i, 0] + j10 * g1[i, 0]
+            dy_vx = j01 * g0[i, 0] + j11 * g1[i, 0]
+            dx_vy = j00 * g0[i, 1] + j10 * g1[i, 1]
+            dy_vy = j01 * g0[i, 1] + j11 * g1[i, 1]
+            dx_sxx = j00 * g0[i, 2] + j10 * g1[i, 2]
+            dy_syy = j01 * g0[i, 3] + j11 * g1[i, 3]
+            dx_sxy = j00 * g0[i, 4] + j10 * g1[i, 4]
+            dy_sxy = j01 * g0[i, 4] + j11 * g1[i, 4]
+            r[i, 0] = dx_sxx + dy_sxy
+            r[i, 1] = dx_sxy + dy_syy
+            r[i, 2] = dx_vx
+            r[i, 3] = dy_vy
+            r[i, 4] = dy_vx + dx_vy
+
+    @njit_inline
+    def inverse_mass(w, r, tmp, Minv_ref, B):
+        """w = (Minv_ref kron B^{-1}) r, with B^{-1} packed as in ``Btab`` (see below)."""
+        for a in range(nb):
+            for k in range(5):
+                acc = 0.0
+                for b in range(nb):
+                    acc += Minv_ref[a, b] * r[b, k]
+                tmp[a, k] = acc
+        b00, b11 = B[0], B[1]
+        c22, c23, c24, c32, c33, c34 = B[2], B[3], B[4], B[5], B[6], B[7]
+        c42, c43, c44 = B[8], B[9], B[10]
+        for a in range(nb):
+            t2, t3, t4 = tmp[a, 2], tmp[a, 3], tmp[a, 4]
+            w[a, 0] = b00 * tmp[a, 0]
+            w[a, 1] = b11 * tmp[a, 1]
+            w[a, 2] = c22 * t2 + c23 * t3 + c24 * t4
+            w[a, 3] = c32 * t2 + c33 * t3 + c34 * t4
+            w[a, 4] = c42 * t2 + c43 * t3 + c44 * t4
+
+    @njit_inline
+    def store(out, w, dofs, c):
+        for a in range(nb):
+            base = 5 * (nb * c + a) if contig else 5 * dofs[c, a]
+            for k in range(5):
+                out[base + k] = w[a, k]
+
     @njit
     def volume_and_inverse(out, R, X, dofs, ncells, S0, S1, Jinv, invdet, Minv_ref, mat, Btab):
         """out[cell dofs] = M_c^{-1} (R[c] + volume terms of c), for the owned cells (R[c] is zeroed);
@@ -78,56 +142,42 @@ def _kernels(nb, nk, contig=False):
         r = np.empty((nb, 5))
         tmp = np.empty((nb, 5))
         for c in range(ncells):
-            for j in range(nb):
-                base = 5 * (nb * c + j) if contig else 5 * dofs[c, j]
-                for k in range(5):
-                    u[j, k] = X[base + k]
-            for i in range(nb):
-                for k in range(5):
-                    s0 = 0.0
-                    s1 = 0.0
-                    for j in range(nb):
-                        s0 += S0[i, j] * u[j, k]
-                        s1 += S1[i, j] * u[j, k]
-                    g0[i, k] = s0
-                    g1[i, k] = s1
-            j00, j01, j10, j11 = Jinv[c, 0, 0], Jinv[c, 0, 1], Jinv[c, 1, 0], Jinv[c, 1, 1]
+            load(u, X, dofs, c)
+            strong_volume(r, u, g0, g1, S0, S1, Jinv, c)
             e = invdet[c]  # (R + |det J| vol) / |det J|
             for i in range(nb):
-                # d/dx = Jinv[0,0] d/dX0 + Jinv[1,0] d/dX1 ; d/dy = Jinv[0,1] d/dX0 + Jinv[1,1] d/dX1
-                dx_vx = j00 * g0[i, 0] + j10 * g1[i, 0]
-                dy_vx = j01 * g0[i, 0] + j11 * g1[i, 0]
-                dx_vy = j00 * g0[i, 1] + j10 * g1[i, 1]
-                dy_vy = j01 * g0[i, 1] + j11 * g1[i, 1]
-                dx_sxx = j00 * g0[i, 2] + j10 * g1[i, 2]
-                dy_syy = j01 * g0[i, 3] + j11 * g1[i, 3]
-                dx_sxy = j00 * g0[i, 4] + j10 * g1[i, 4]
-                dy_sxy = j01 * g0[i, 4] + j11 * g1[i, 4]
-                r[i, 0] = e * R[c, i, 0] + (dx_sxx + dy_sxy)
-                r[i, 1] = e * R[c, i, 1] + (dx_sxy + dy_syy)
-                r[i, 2] = e * R[c, i, 2] + dx_vx
-                r[i, 3] = e * R[c, i, 3] + dy_vy
-                r[i, 4] = e * R[c, i, 4] + (dy_vx + dx_vy)
                 for k in range(5):
+                    r[i, k] += e * R[c, i, k]
                     R[c, i, k] = 0.0  # cleared for the next stage (saves a separate pass)
-            for a in range(nb):
+            inverse_mass(u, r, tmp, Minv_ref, Btab[mat[c]])
+            store(out, u, dofs, c)
+
+    @njit
+    def ader_predictor(I, X, dofs, ncells, S0, S1, Jinv, Minv_ref, mat, Btab, dt, order):
+        """I[cell dofs] = sum_{k=0..order} dt^(k+1)/(k+1)! D^k x on each owned cell, D the
+        cell-local strong-form operator (the volume terms and the inverse mass, no facet
+        flux): the time integral over one step of the cell's Taylor predictor, in one pass."""
+        u = np.empty((nb, 5))
+        g0 = np.empty((nb, 5))
+        g1 = np.empty((nb, 5))
+        r = np.empty((nb, 5))
+        tmp = np.empty((nb, 5))
+        acc = np.empty((nb, 5))
+        for c in range(ncells):
+            load(u, X, dofs, c)
+            for j in range(nb):
                 for k in range(5):
-                    acc = 0.0
-                    for b in range(nb):
-                        acc += Minv_ref[a, b] * r[b, k]
-                    tmp[a, k] = acc
+                    acc[j, k] = dt * u[j, k]
+            coef = dt
             B = Btab[mat[c]]
-            b00, b11 = B[0], B[1]
-            c22, c23, c24, c32, c33, c34 = B[2], B[3], B[4], B[5], B[6], B[7]
-            c42, c43, c44 = B[8], B[9], B[10]
-            for a in range(nb):
-                base = 5 * (nb * c + a) if contig else 5 * dofs[c, a]
-                t2, t3, t4 = tmp[a, 2], tmp[a, 3], tmp[a, 4]
-                out[base] = b00 * tmp[a, 0]
-                out[base + 1] = b11 * tmp[a, 1]
-                out[base + 2] = c22 * t2 + c23 * t3 + c24 * t4
-                out[base + 3] = c32 * t2 + c33 * t3 + c34 * t4
-                out[base + 4] = c42 * t2 + c43 * t3 + c44 * t4
+            for m in range(1, order + 1):
+                strong_volume(r, u, g0, g1, S0, S1, Jinv, c)
+                inverse_mass(u, r, tmp, Minv_ref, B)
+                coef *= dt / (m + 1)
+                for j in range(nb):
+                    for k in range(5):
+                        acc[j, k] += coef * u[j, k]
+            store(I, acc, dofs, c)
 
     @njit
     def facet_fluxes(R, X, dofs, fcells, fcodes, normal, length, fnodes, Mf, Zd, Zs, nowned):
@@ -314,7 +364,8 @@ def _kernels(nb, nk, contig=False):
             strain += absdet[c] * es
         return 0.5 * kin, 0.5 * strain
 
-    return volume_and_inverse, facet_fluxes, facet_dissipation, cell_energies, boundary_fluxes, boundary_energy
+    return (volume_and_inverse, facet_fluxes, facet_dissipation, cell_energies, boundary_fluxes, boundary_energy,
+            ader_predictor)
 
 
 def facet_nodes(ref, tables, qw):
@@ -500,7 +551,7 @@ class MatrixFreeOperator:
         self.tables = tables
         self.fnodes, self.Mf = facet_nodes(ref, tables, self.qw)
         (self._volume, self._facets, self._dissipation, self._energies, self._boundary,
-         self._boundary_energy) = _kernels(nb, self.fnodes.shape[1], self.contiguous)
+         self._boundary_energy, self._predictor) = _kernels(nb, self.fnodes.shape[1], self.contiguous)
         c_off, c_arr = compat.connectivity(mesh, tdim - 1, tdim)
         facets = np.asarray(facets, dtype=np.int64)
         # facets of the outer ghost layer see one cell here: a ghost, so nothing to add
@@ -529,6 +580,7 @@ class MatrixFreeOperator:
         self.dof_x = compat.dof_coordinates(solver.V)
         self.set_boundary(np.zeros(0, dtype=np.int64), [])  # (none until the solver sets them)
         self.R = np.zeros((self.nowned, self.dofs.shape[1], 5))
+        self._Rzero = np.zeros_like(self.R)  # (the volume kernel leaves it zero)
         self._R_clear = True
         self.Mref = np.ascontiguousarray(ref.mass())
         self.Bmat = solver.material_blocks
@@ -578,11 +630,43 @@ class MatrixFreeOperator:
         self.G0 = np.ascontiguousarray(np.repeat(G0[:, None, :], nk, axis=1))
         self.G = self.G0.copy()
         self._bstatic = not (self._bhist or self._bouter)
+        self._G_scaled = False
+
+    def integrate_boundary_data(self, t, dt, npoints):
+        """G = the integral of the outer data over [t, t + dt], by Gauss-Legendre quadrature
+        with ``npoints`` points (the boundary flux is linear in the trace and the data, so
+        the flux of a time-integrated trace uses the time-integrated data: ADER)."""
+        if self._bstatic:
+            np.multiply(self.G0, dt, out=self.G)
+            self._G_scaled = True
+            return
+        xi, w = np.polynomial.legendre.leggauss(npoints)
+        acc = np.zeros_like(self.G)
+        for xq, wq in zip(xi, w):
+            self.boundary_data(t + 0.5 * dt * (1.0 + xq))
+            acc += (0.5 * dt * wq) * self.G
+        self.G[:] = acc
+        self._G_scaled = True
+
+    def local_derivative(self, x, out):
+        """out = D x, the cell-local strong-form operator (the volume terms without any facet
+        flux: the time derivative of each cell's polynomial as if it stood alone, exact for
+        P_p data); ``x``, ``out``: owned values."""
+        self._volume(out, self._Rzero, x, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
+                     self.Minv_ref, self.mat, self.Btab)
+
+    def ader_predictor(self, x, I, dt, order):
+        """I = sum_{k=0..order} dt^(k+1)/(k+1)! D^k x (:meth:`local_derivative`), the time
+        integral of the cell-local Taylor predictor over [t, t + dt] (ADER's
+        Cauchy-Kovalevskaya step), in one compiled pass; ``x``, ``I``: owned values."""
+        self._predictor(I, x, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.Minv_ref, self.mat,
+                        self.Btab, float(dt), int(order))
 
     def boundary_data(self, t):
         """The outer data G of the boundary facets at time t (histories and outer states)."""
-        if self._bstatic:
+        if self._bstatic and not self._G_scaled:
             return
+        self._G_scaled = False
         G = self.G
         G[:] = self.G0
         for hist, rows, unit in self._bhist:
@@ -618,10 +702,11 @@ class MatrixFreeOperator:
         self.begin(xloc, t)
         self.finish(xloc, out)
 
-    def begin(self, xloc, t=0.0):
+    def begin(self, xloc, t=0.0, data=True):
         """Clear the cell residual ``R`` and add the interior and boundary facet fluxes (the
-        boundary data at time t); other facet terms (crack interfaces) may be added to
-        ``R[c, j, :]`` (owned cell c, local basis j) before :meth:`finish`."""
+        boundary data at time t; ``data=False``: the data already in ``G``); other facet terms
+        (crack interfaces) may be added to ``R[c, j, :]`` (owned cell c, local basis j) before
+        :meth:`finish`."""
         R = self.R
         if not self._R_clear:  # finish() clears R as it reads it; after an interrupted stage, here
             R[:] = 0.0
@@ -629,7 +714,8 @@ class MatrixFreeOperator:
         self._facets(R, xloc, self.dofs, self.fcells, self.fcodes, self.normal, self.length, self.fnodes, self.Mf,
                      self.Zd, self.Zs, self.nowned)
         if self.bcells.size:
-            self.boundary_data(t)
+            if data:
+                self.boundary_data(t)
             self._boundary(R, xloc, self.dofs, self.bcells, self.bcodes, self.bnormal, self.blength, self.bkinds,
                            self.G, self.fnodes, self.Mf, self.Zd, self.Zs)
 

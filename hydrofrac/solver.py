@@ -96,8 +96,33 @@ LOW_STORAGE = {
 }
 
 
-def num_stages(scheme: str) -> int:
-    """Operator applications per step of ``scheme``."""
+#: ADER (arbitrary high-order derivatives) one-step scheme for the bulk alone, as SeisSol
+#: uses for linear elastodynamics (Dumbser & Käser 2006, Geophys. J. Int. 167, 319): per
+#: step, a cell-local Taylor predictor from p applications of the local strong-form
+#: operator D (Cauchy-Kovalevskaya; D^(p+1) = 0 on P_p, so the local series is exact), its
+#: time integral I = sum_k dt^(k+1)/(k+1)! D^k x, and one corrector x += L(I) with the
+#: boundary data integrated over the step (Gauss-Legendre).  Order p + 1 in space and time.
+#: C_max from the amplification symbol I + L(theta) P(D) on infinite structured meshes
+#: (tests/cfl_calibration.py), per degree; the constants keep rk4's margin (0.909 of the
+#: "right" limit, the smaller one).  Crack interfaces (nonlinear, with their own state)
+#: need the Runge-Kutta schemes.
+ADER = "ader"
+ADER_CFL = {1: 0.73, 2: 0.69, 3: 0.64, 4: 0.56}
+
+
+def default_cfl(scheme: str, degree: int) -> float:
+    """The documented stable CFL constant of ``scheme`` at degree p (:data:`CFL_DEFAULT`,
+    :data:`ADER_CFL`)."""
+    return ADER_CFL[degree] if scheme == ADER else CFL_DEFAULT[scheme]
+
+
+def num_stages(scheme: str, degree: Optional[int] = None) -> int:
+    """Operator applications per step of ``scheme`` (ADER: p local derivatives and one
+    full application, counted alike)."""
+    if scheme == ADER:
+        if degree is None:
+            raise ValueError("the ADER step's work depends on the degree: pass degree")
+        return degree + 1
     return len(LOW_STORAGE[scheme][1]) if scheme in LOW_STORAGE else len(TABLEAUX[scheme][1])
 
 
@@ -177,10 +202,10 @@ class Solver:
     bcs : boundary conditions (:mod:`hydrofrac.boundary`); untagged exterior
         facets are traction-free
     sigma0 : initial (and reference) stress, symmetric 2x2 [Pa]
-    cfl : CFL constant (default :data:`CFL_DEFAULT`)
+    cfl : CFL constant (default :func:`default_cfl`)
     dt : fixed time step; must not exceed the stability limit
-    scheme : "rk4" (default), "ssprk3", or a low-storage scheme "lsrk54" / "lsrk144"
-        (:data:`LOW_STORAGE`)
+    scheme : "rk4" (default), "ssprk3", a low-storage scheme "lsrk54" / "lsrk144"
+        (:data:`LOW_STORAGE`), or "ader" (:data:`ADER`: the bulk alone, matrix-free)
     crack_facets : local facet indices excluded from the bulk upwind flux (crack
         interfaces carry their own flux, :mod:`hydrofrac.interface`)
     relaxation : dynamic-relaxation damping c [1/s] (rho dv/dt = div sigma - c rho v),
@@ -215,8 +240,15 @@ class Solver:
                           f"kernels implement ({', '.join(IMPLEMENTED_FORMS)}): using the operator assembled from "
                           "the edited forms", flush=True)
         self.operator = operator
-        if scheme not in TABLEAUX and scheme not in LOW_STORAGE:
-            raise ValueError(f"scheme must be one of {sorted(TABLEAUX) + sorted(LOW_STORAGE)}; got {scheme!r}")
+        if scheme not in TABLEAUX and scheme not in LOW_STORAGE and scheme != ADER:
+            raise ValueError(f"scheme must be one of {sorted(TABLEAUX) + sorted(LOW_STORAGE) + [ADER]}; "
+                             f"got {scheme!r}")
+        if scheme == ADER and operator != "matfree":
+            raise ValueError("scheme 'ader' needs the matrix-free operator (its predictor is the cell-local volume "
+                             "kernel): use operator='matfree' with the forms the kernels implement, or a Runge-Kutta "
+                             "scheme")
+        if scheme == ADER and relaxation:
+            raise ValueError("scheme 'ader' has no dynamic relaxation: use relaxation=0, or a Runge-Kutta scheme")
         self.degree = int(degree)
         self.scheme = scheme
         self.sigma0 = np.asarray(sigma0, dtype=float)
@@ -237,14 +269,15 @@ class Solver:
         nloc = compat.num_cells_local(mesh)
         local_min = h_over_c[:nloc].min() if nloc else np.inf
         self.h_over_c_min = self.comm.allreduce(local_min, op=MPI.MIN)
-        self.cfl = CFL_DEFAULT[scheme] if cfl is None else float(cfl)
+        c_def = default_cfl(scheme, self.degree)
+        self.cfl = c_def if cfl is None else float(cfl)
         if not self.cfl > 0:
             raise ValueError(f"cfl must be > 0; got {cfl}")
-        if self.cfl > CFL_DEFAULT[scheme] * (1 + 1e-12) and not allow_unstable:
-            raise ValueError(f"cfl = {self.cfl:g} is above the documented stable value {CFL_DEFAULT[scheme]} of "
-                             f"{scheme} (CFL_DEFAULT, calibrated in docs/verification.md); use cfl <= "
-                             f"{CFL_DEFAULT[scheme]}, or allow_unstable=True for a stability study")
-        self.dt_stable = CFL_DEFAULT[scheme] * self.h_over_c_min / (2 * self.degree + 1)
+        if self.cfl > c_def * (1 + 1e-12) and not allow_unstable:
+            raise ValueError(f"cfl = {self.cfl:g} is above the documented stable value {c_def} of "
+                             f"{scheme} (CFL_DEFAULT / ADER_CFL, calibrated in docs/verification.md); use cfl <= "
+                             f"{c_def}, or allow_unstable=True for a stability study")
+        self.dt_stable = c_def * self.h_over_c_min / (2 * self.degree + 1)
         if dt is None:
             self.dt = self.cfl * self.h_over_c_min / (2 * self.degree + 1)
         else:
@@ -253,7 +286,7 @@ class Solver:
             if dt > self.dt_stable * (1 + 1e-12):
                 raise ValueError(
                     f"dt = {dt:.4g} s is above the stability limit {self.dt_stable:.4g} s of this mesh "
-                    f"(CFL {CFL_DEFAULT[scheme]} * h_min/((2p+1) c_d) with h_min/c_d = {self.h_over_c_min:.4g} s); "
+                    f"(CFL {c_def} * h_min/((2p+1) c_d) with h_min/c_d = {self.h_over_c_min:.4g} s); "
                     f"use dt <= {self.dt_stable:.4g} or leave dt unset")
             self.dt = float(dt)
 
@@ -337,7 +370,7 @@ class Solver:
             self.matfree = MatrixFreeOperator(self, self._bulk_facets())
             facets, bc_of = self._boundary_facets(btags)
             self.matfree.set_boundary(facets, bc_of, self.bcs)
-            self._work = [self.x_like() for _ in range(2 if self.scheme in LOW_STORAGE else num_stages(self.scheme) + 2)]
+            self._work = [self.x_like() for _ in range(self._registers())]
             self.account = EnergyAccount(self, ds, free_tag, n)
             return
 
@@ -390,8 +423,13 @@ class Solver:
         self._loads = ([] if self.c0 is None else [(None, _nonzeros(self.c0))]) + [
             (hist, _nonzeros(c)) for hist, c in self.c_hist]
 
-        self._work = [self.x_like() for _ in range(2 if self.scheme in LOW_STORAGE else num_stages(self.scheme) + 2)]
+        self._work = [self.x_like() for _ in range(self._registers())]
         self.account = EnergyAccount(self, ds, free_tag, n)
+
+    def _registers(self):
+        """Work vectors of the scheme: 2 (low-storage, ADER: the integral and its rate), or
+        the stages + 2."""
+        return 2 if self.scheme in LOW_STORAGE or self.scheme == ADER else num_stages(self.scheme) + 2
 
     def _boundary_facets(self, btags):
         """The exterior facets of the owned cells, and the boundary condition of each (None:
@@ -508,6 +546,9 @@ class Solver:
         right-hand side and of the RK stages."""
         if extension in self.extensions:
             raise ValueError("this extension is already attached to the solver")
+        if self.scheme == ADER:
+            raise ValueError("scheme 'ader' is for the bulk alone: crack interfaces need a Runge-Kutta scheme "
+                             "(scheme='rk4' or 'lsrk54')")
         self.extensions.append(extension)
 
     # ------------------------------------------------------------------ state
@@ -521,7 +562,7 @@ class Solver:
 
     @property
     def num_stages(self):
-        return num_stages(self.scheme)
+        return num_stages(self.scheme, self.degree)
 
     def state0_array(self):
         """Nodal array (ndofs_local_with_ghosts, 5) of the initial uniform state (v=0, sigma0)."""
@@ -602,6 +643,8 @@ class Solver:
         """Advance one time step with the explicit RK scheme (fields and extension states)."""
         if self.scheme in LOW_STORAGE:
             return self._step_2n()
+        if self.scheme == ADER:
+            return self._step_ader()
         a, b, c = TABLEAUX[self.scheme]
         dt, t, x = self.dt, self.t, self.x
         ks = self._work[: len(b)]
@@ -672,6 +715,27 @@ class Solver:
         self.t += dt
         self.step_count += 1
         self.timers.add("rk update", time.perf_counter() - t0)
+
+    def _step_ader(self):
+        """One ADER step (:data:`ADER`): the predictor's time integral I over the step from p
+        cell-local derivatives, one ghost update of I, and x += M^{-1}(K I + the boundary
+        data integrated over the step)."""
+        t0 = time.perf_counter()
+        mf, dt, x = self.matfree, self.dt, self.x
+        I, k = self._work
+        mf.ader_predictor(x.array_r, I.array, dt, self.degree)
+        mf.integrate_boundary_data(self.t, dt, (self.degree + 2) // 2)
+        if self.comm.size > 1:
+            I.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        self.timers.add("rk update", time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        with I.localForm() as il:
+            mf.begin(il.array_r, self.t, data=False)
+            mf.finish(il.array_r, k.array)
+        x.axpy(1.0, k)
+        self.t += dt
+        self.step_count += 1
+        self.timers.add("bulk operator", time.perf_counter() - t0)
 
     # ------------------------------------------------------------------ energy
     def energies(self):

@@ -3,12 +3,15 @@
 The plane P wave of :mod:`hydrofrac.postprocess.study_work_precision` (the unit square, the
 exact solution as the outer state, the relative energy-norm error at the final time), run
 with each explicit scheme of the solver at its documented CFL constant
-(:data:`hydrofrac.solver.CFL_DEFAULT`, calibrated by ``tests/cfl_calibration.py``):
+(:func:`hydrofrac.solver.default_cfl`, calibrated by ``tests/cfl_calibration.py``):
 
 * ``rk4``: the classical 4-stage scheme (the default);
 * ``lsrk54``: Carpenter & Kennedy's 5-stage 4th-order 2N scheme;
 * ``lsrk144``: Niegemann, Diehl & Busch's 14-stage 4th-order 2N scheme, whose stability
-  region is optimised for upwind DG spectra.
+  region is optimised for upwind DG spectra;
+* ``ader``: the one-step ADER scheme (:data:`hydrofrac.solver.ADER`): a cell-local Taylor
+  predictor (p local derivatives in one compiled pass) and one corrector per step, order
+  p + 1 in space and time.  Its "applications" count the p local derivatives like full ones.
 
 For each: the error, the operator applications (steps x stages), the wall time of the time
 loop and the throughput (DOF·stages/s), side by side in one run; and the error at a fixed
@@ -29,16 +32,17 @@ from hydrofrac.postprocess.rundata import write_csv
 from hydrofrac.postprocess.study_common import (cases, log_axes, plane_wave_solver, results_dir, save_figure, say,
                                                 study_parser, wall_at)
 from hydrofrac.postprocess.study_work_precision import MAT, TRAVEL, dg_error, state, state_pt
-from hydrofrac.solver import CFL_DEFAULT
+from hydrofrac.solver import default_cfl
 
-SCHEMES = ("rk4", "lsrk54", "lsrk144")
-SIZES = {2: (8, 16, 32), 3: (4, 8, 16, 32)}
+SCHEMES = ("rk4", "lsrk54", "lsrk144", "ader")
+SIZES = {1: (16, 32, 64), 2: (8, 16, 32), 3: (4, 8, 16, 32)}
 QUICK = {2: (8, 16), 3: (4, 8)}
 
 
 def run(comm, scheme, p, N, cfl_factor=1.0):
     def build():
-        return plane_wave_solver(comm, p, N, MAT, state, TRAVEL, point=state_pt, scheme=scheme, cfl=CFL_DEFAULT[scheme] * cfl_factor)
+        return plane_wave_solver(comm, p, N, MAT, state, TRAVEL, point=state_pt, scheme=scheme,
+                                 cfl=default_cfl(scheme, p) * cfl_factor)
     wall = min(timed_steps(*build()) for _ in range(2))  # (the minimum of repeats: absolute times are noisy)
     solver, steps = build()
     timed_steps(solver, steps)
@@ -55,18 +59,18 @@ def plot(rows, png):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, (a1, a2, a3) = plt.subplots(1, 3, figsize=(16, 4.8))
-    for p, ls in ((2, "-"), (3, "--")):
-        for scheme, m in zip(SCHEMES, "osd"):
+    for p, ls in ((1, ":"), (2, "-"), (3, "--")):
+        for scheme, m in zip(SCHEMES, "osd^"):
             rs = sorted([r for r in rows if r["scheme"] == scheme and r["degree"] == p and r["cfl_factor"] == 1.0],
                         key=lambda r: r["dofs"])
             if rs:
                 a1.loglog([r["wall_s"] for r in rs], [r["rel_error"] for r in rs], m + ls, label=f"{scheme} P{p}")
                 a2.loglog([r["applications"] * r["dofs"] for r in rs], [r["rel_error"] for r in rs], m + ls,
                           label=f"{scheme} P{p}")
-    for scheme, m in zip(SCHEMES, "osd"):
+    for scheme, m in zip(SCHEMES, "osd^"):
         rs = sorted([r for r in rows if r["scheme"] == scheme and r.get("dt_series")], key=lambda r: -r["cfl_factor"])
         if rs:
-            a3.loglog([CFL_DEFAULT[scheme] * r["cfl_factor"] / r["stages"] for r in rs],
+            a3.loglog([default_cfl(scheme, r["degree"]) * r["cfl_factor"] / r["stages"] for r in rs],
                       [r["rel_error"] for r in rs], m + "-", label=scheme)
     a1.set_xlabel("wall time of the time loop [s]")
     a2.set_xlabel("DOF x operator applications")

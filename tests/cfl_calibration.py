@@ -18,6 +18,7 @@ Run: ``.venv/bin/python tests/cfl_calibration.py`` (about 10 minutes on 2 cores;
 from __future__ import annotations
 
 import argparse
+import math
 
 import numpy as np
 import scipy.sparse as sp
@@ -25,7 +26,7 @@ import scipy.sparse.linalg as sla
 from mpi4py import MPI
 
 from hydrofrac import ROCK, compat
-from hydrofrac.solver import CFL_DEFAULT, LOW_STORAGE, Solver, num_stages
+from hydrofrac.solver import ADER, ADER_CFL, CFL_DEFAULT, LOW_STORAGE, Solver, num_stages
 
 def low_storage_polynomial(scheme):
     """R(z) of a 2N scheme (:data:`hydrofrac.solver.LOW_STORAGE`): its stages applied to y' = z y."""
@@ -64,8 +65,10 @@ def scipy_operator(solver):
     return sp.csr_matrix((vals, cols, indptr), shape=A.getSize())
 
 
-def symbol_eigenvalues(p, diagonal, material=ROCK, ntheta=24):
-    """Eigenvalues of the symbol of A on an infinite structured mesh, in units of 1/unit."""
+def square_blocks(p, diagonal, material=ROCK):
+    """The rows of A for the unknowns of one interior square of an infinite structured mesh,
+    split by the neighbouring square they couple to: ({(di, dj): block}, rows, the matrix-free
+    solver of the same mesh, the unit h_min/((2p + 1) c_d))."""
     N = 6
     mesh = compat.create_rectangle(MPI.COMM_SELF, (0, 0), (N, N), N, N, diagonal=diagonal)
     s = Solver(mesh, p, material, operator="assembled")
@@ -89,10 +92,56 @@ def symbol_eigenvalues(p, diagonal, material=ROCK, ntheta=24):
     blocks = {(di, dj): Arows[:, square_rows(2 + di, 2 + dj)].toarray() for di in (-1, 0, 1) for dj in (-1, 0, 1)}
     coupled = sum(np.abs(b).sum() for b in blocks.values())
     assert abs(coupled - np.abs(Arows).sum()) <= 1e-9 * coupled, "rows couple beyond the neighbouring squares"
+    return blocks, rows, Solver(mesh, p, material), s.h_over_c_min / (2 * p + 1)
+
+
+def symbols(blocks, ntheta):
     theta = np.linspace(-np.pi, np.pi, ntheta, endpoint=False)
-    lam = [np.linalg.eigvals(sum(b * np.exp(1j * (t1 * k[0] + t2 * k[1])) for k, b in blocks.items()))
-           for t1 in theta for t2 in theta]
-    return np.concatenate(lam) * s.h_over_c_min / (2 * p + 1)
+    return [sum(b * np.exp(1j * (t1 * k[0] + t2 * k[1])) for k, b in blocks.items()) for t1 in theta for t2 in theta]
+
+
+def symbol_eigenvalues(p, diagonal, material=ROCK, ntheta=24):
+    """Eigenvalues of the symbol of A on an infinite structured mesh, in units of 1/unit."""
+    blocks, _, _, unit = square_blocks(p, diagonal, material)
+    return np.concatenate([np.linalg.eigvals(S) for S in symbols(blocks, ntheta)]) * unit
+
+
+def ader_c_max(p, diagonal, ntheta=24, tol=1e-4):
+    """C_max of the ADER step (:data:`hydrofrac.solver.ADER`) on an infinite structured mesh:
+    the largest C with spectral radius <= 1 + tol of its amplification symbol
+    G(theta) = I + C A(theta) P, P = sum_k C^k D^k / (k + 1)! (A, D in units of 1/unit; D, the
+    cell-local operator, read column by column off the matrix-free kernel).  ``tol``: the
+    eigenvalue 1 of the uniform states is defective, and its round-off reaches 3e-6 at p = 4;
+    past the limit the radius jumps by > 0.1 within 0.05 of C."""
+    blocks, rows, mf_solver, unit = square_blocks(p, diagonal)
+    n = mf_solver.x.array_r.size
+    D = np.zeros((rows.size, rows.size))
+    e, out = np.zeros(n), np.zeros(n)
+    for jj, col in enumerate(rows):
+        e[:] = 0.0
+        e[col] = 1.0
+        mf_solver.matfree.local_derivative(e, out)
+        D[:, jj] = out[rows]
+        assert abs(np.abs(out).sum() - np.abs(out[rows]).sum()) <= 1e-12 * np.abs(out).sum()  # cell-local
+    syms = [S * unit for S in symbols(blocks, ntheta)]
+    D *= unit
+    eye = np.eye(D.shape[0])
+
+    def radius(C):
+        P, Dk = np.zeros_like(D), eye
+        for k in range(p + 1):
+            P = P + Dk * C ** k / math.factorial(k + 1)
+            Dk = Dk @ D
+        return max(np.abs(np.linalg.eigvals(eye + C * S @ P)).max() for S in syms)
+
+    lo = 0.0
+    while radius(lo + 0.1) <= 1 + tol:
+        lo += 0.1
+    hi = lo + 0.1
+    for _ in range(12):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if radius(mid) <= 1 + tol else (lo, mid)
+    return lo
 
 
 def mesh_eigenvalues(p, N, diagonal="right"):
@@ -123,6 +172,11 @@ def main():
             cm = {k: c_max(lam, k, samples=16000) for k in schemes}
             print(f"{str(size) + ' ' + diagonal:>20s}  {p}  " + "  ".join(f"{cm[k]:13.4f}" for k in schemes)
                   + "   (" + ", ".join(f"{k} {cm[k] / num_stages(k):.4f}" for k in schemes) + ")", flush=True)
+    print(f"ADER (ADER_CFL = {ADER_CFL}): C_max on infinite meshes, and per application (C_max / (p + 1))")
+    for diagonal in ("right",) if args.quick else ("right", "crossed"):
+        for p in (1, 2, 3, 4):
+            cm = ader_c_max(p, diagonal, ntheta=12 if args.quick else 24)
+            print(f"{'infinite ' + diagonal:>20s}  {p}  ader {cm:.4f}  ({cm / num_stages(ADER, p):.4f})", flush=True)
 
 
 if __name__ == "__main__":

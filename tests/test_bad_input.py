@@ -69,6 +69,25 @@ def test_cfl_must_be_positive(square):
         Solver(mesh, 1, ROCK, cfl=0.0)
 
 
+def test_unknown_scheme(square):
+    mesh, _ = square
+    with pytest.raises(ValueError, match=r"scheme must be one of .*'ader'.*; got 'rk5'"):
+        Solver(mesh, 1, ROCK, scheme="rk5")
+
+
+def test_ader_refuses_what_it_cannot_step(square):
+    """ADER's predictor is the matrix-free volume kernel, and its step has no place for the
+    crack interfaces' own states or for dynamic relaxation: each is refused up front."""
+    mesh, _ = square
+    with pytest.raises(ValueError, match=r"scheme 'ader' needs the matrix-free operator.*operator='matfree'"):
+        Solver(mesh, 1, ROCK, scheme="ader", operator="assembled")
+    with pytest.raises(ValueError, match=r"scheme 'ader' has no dynamic relaxation: use relaxation=0"):
+        Solver(mesh, 1, ROCK, scheme="ader", relaxation=1e3)
+    solver = Solver(mesh, 1, ROCK, scheme="ader")
+    with pytest.raises(ValueError, match=r"scheme 'ader' is for the bulk alone.*scheme='rk4' or 'lsrk54'"):
+        solver.attach(object())
+
+
 def test_boundary_tag_not_in_mesh(square):
     mesh, ft = square  # tags 1..4
     with pytest.raises(ValueError, match=r"boundary tag\(s\) \[7\] are not in the mesh's facet tags \[1, 2, 3, 4\]"):

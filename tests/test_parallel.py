@@ -31,15 +31,16 @@ def two_material_square(comm, N=8):
     return mesh, ft, ct
 
 
-def run_problem(comm, p=2, steps=30):
+def run_problem(comm, p=2, steps=30, scheme="rk4"):
     """Confined two-material block: pressure ramp on the left, absorbing right side, mirror
-    top and bottom, a smooth disturbance in the initial state; ``steps`` RK4 steps with the
-    energy budget."""
+    top and bottom, a smooth disturbance in the initial state; ``steps`` steps of ``scheme``
+    with the energy budget."""
     mesh, ft, ct = two_material_square(comm)
     history = PiecewiseLinear((0.0, 20e-6, 1.0), (0.0, 2e6, 2e6))
     bcs = [Traction(LEFT, stress=SIGMA0, pressure=history), Absorbing(RIGHT, stress=SIGMA0),
            Symmetry(BOTTOM), Slider(TOP)]
-    solver = Solver(mesh, p, {1: ROCK, 2: MEDIUM2}, cell_tags=ct, facet_tags=ft, bcs=bcs, sigma0=SIGMA0)
+    solver = Solver(mesh, p, {1: ROCK, 2: MEDIUM2}, cell_tags=ct, facet_tags=ft, bcs=bcs, sigma0=SIGMA0,
+                    scheme=scheme)
     solver.set_initial_state(exact.gaussian_bump(ROCK, (0.3, 0.6), 0.15, sigma0=SIGMA0))
     solver.update_energy()
     for _ in range(steps):
@@ -63,10 +64,11 @@ def owned_nodal_fields(solver):
 
 
 @pytest.mark.mpi
-def test_world_equals_self():
+@pytest.mark.parametrize("scheme", ["rk4", "ader"])
+def test_world_equals_self(scheme):
     comm = MPI.COMM_WORLD
-    par = run_problem(comm)
-    ser = run_problem(MPI.COMM_SELF)
+    par = run_problem(comm, scheme=scheme)
+    ser = run_problem(MPI.COMM_SELF, scheme=scheme)
     assert par.num_dofs == ser.num_dofs and par.dt == ser.dt
     fp, fs = owned_nodal_fields(par), owned_nodal_fields(ser)
     assert comm.allreduce(len(fp), op=MPI.SUM) == len(fs), "the ranks' owned cells do not cover the mesh"
