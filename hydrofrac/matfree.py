@@ -104,24 +104,29 @@ def _kernels(nb, nk, contig=False):
             r[i, 4] = dy_vx + dx_vy
 
     @njit_inline
+    def material(w, t, B):
+        """w = B^{-1} t node by node, with B^{-1} packed as in ``Btab`` (see below)."""
+        b00, b11 = B[0], B[1]
+        c22, c23, c24, c32, c33, c34 = B[2], B[3], B[4], B[5], B[6], B[7]
+        c42, c43, c44 = B[8], B[9], B[10]
+        for a in range(nb):
+            t2, t3, t4 = t[a, 2], t[a, 3], t[a, 4]
+            w[a, 0] = b00 * t[a, 0]
+            w[a, 1] = b11 * t[a, 1]
+            w[a, 2] = c22 * t2 + c23 * t3 + c24 * t4
+            w[a, 3] = c32 * t2 + c33 * t3 + c34 * t4
+            w[a, 4] = c42 * t2 + c43 * t3 + c44 * t4
+
+    @njit_inline
     def inverse_mass(w, r, tmp, Minv_ref, B):
-        """w = (Minv_ref kron B^{-1}) r, with B^{-1} packed as in ``Btab`` (see below)."""
+        """w = (Minv_ref kron B^{-1}) r."""
         for a in range(nb):
             for k in range(5):
                 acc = 0.0
                 for b in range(nb):
                     acc += Minv_ref[a, b] * r[b, k]
                 tmp[a, k] = acc
-        b00, b11 = B[0], B[1]
-        c22, c23, c24, c32, c33, c34 = B[2], B[3], B[4], B[5], B[6], B[7]
-        c42, c43, c44 = B[8], B[9], B[10]
-        for a in range(nb):
-            t2, t3, t4 = tmp[a, 2], tmp[a, 3], tmp[a, 4]
-            w[a, 0] = b00 * tmp[a, 0]
-            w[a, 1] = b11 * tmp[a, 1]
-            w[a, 2] = c22 * t2 + c23 * t3 + c24 * t4
-            w[a, 3] = c32 * t2 + c33 * t3 + c34 * t4
-            w[a, 4] = c42 * t2 + c43 * t3 + c44 * t4
+        material(w, tmp, B)
 
     @njit_inline
     def store(out, w, dofs, c):
@@ -153,15 +158,15 @@ def _kernels(nb, nk, contig=False):
             store(out, u, dofs, c)
 
     @njit
-    def ader_predictor(I, X, dofs, ncells, S0, S1, Jinv, Minv_ref, mat, Btab, dt, order):
+    def ader_predictor(I, X, dofs, ncells, D0, D1, Jinv, mat, Btab, dt, order):
         """I[cell dofs] = sum_{k=0..order} dt^(k+1)/(k+1)! D^k x on each owned cell, D the
         cell-local strong-form operator (the volume terms and the inverse mass, no facet
-        flux): the time integral over one step of the cell's Taylor predictor, in one pass."""
+        flux; ``D_r = Minv_ref S_r``, the nodal derivative matrices): the time integral over
+        one step of the cell's Taylor predictor, in one pass."""
         u = np.empty((nb, 5))
         g0 = np.empty((nb, 5))
         g1 = np.empty((nb, 5))
         r = np.empty((nb, 5))
-        tmp = np.empty((nb, 5))
         acc = np.empty((nb, 5))
         for c in range(ncells):
             load(u, X, dofs, c)
@@ -171,8 +176,8 @@ def _kernels(nb, nk, contig=False):
             coef = dt
             B = Btab[mat[c]]
             for m in range(1, order + 1):
-                strong_volume(r, u, g0, g1, S0, S1, Jinv, c)
-                inverse_mass(u, r, tmp, Minv_ref, B)
+                strong_volume(r, u, g0, g1, D0, D1, Jinv, c)
+                material(u, r, B)
                 coef *= dt / (m + 1)
                 for j in range(nb):
                     for k in range(5):
@@ -581,6 +586,7 @@ class MatrixFreeOperator:
         self.set_boundary(np.zeros(0, dtype=np.int64), [])  # (none until the solver sets them)
         self.R = np.zeros((self.nowned, self.dofs.shape[1], 5))
         self._Rzero = np.zeros_like(self.R)  # (the volume kernel leaves it zero)
+        self._D = None  # the nodal derivative matrices (ADER's predictor), when first asked for
         self._R_clear = True
         self.Mref = np.ascontiguousarray(ref.mass())
         self.Bmat = solver.material_blocks
@@ -659,8 +665,9 @@ class MatrixFreeOperator:
         """I = sum_{k=0..order} dt^(k+1)/(k+1)! D^k x (:meth:`local_derivative`), the time
         integral of the cell-local Taylor predictor over [t, t + dt] (ADER's
         Cauchy-Kovalevskaya step), in one compiled pass; ``x``, ``I``: owned values."""
-        self._predictor(I, x, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.Minv_ref, self.mat,
-                        self.Btab, float(dt), int(order))
+        if self._D is None:
+            self._D = tuple(np.ascontiguousarray(self.Minv_ref @ S) for S in (self.S0, self.S1))
+        self._predictor(I, x, self.dofs, self.nowned, *self._D, self.Jinv, self.mat, self.Btab, float(dt), int(order))
 
     def boundary_data(self, t):
         """The outer data G of the boundary facets at time t (histories and outer states)."""
