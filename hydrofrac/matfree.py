@@ -59,81 +59,104 @@ def _boundary_node(X, i, nx, ny, kn, kt, Zn, Zt, G, f, k):
     return vn, vt, sn, st, dsn, dvn, dst, dvt
 
 
+# per-cell helpers of the kernels, inlined into them (numba IR), so that the kernels' constant
+# sizes nb reach their loops and LLVM unrolls them as in one function
+@njit_inline
+def _load(u, X, dofs, c, nb, contig):
+    for j in range(nb):
+        base = 5 * (nb * c + j) if contig else 5 * dofs[c, j]
+        for k in range(5):
+            u[j, k] = X[base + k]
+
+
+@njit_inline
+def _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb):
+    """r = the strong-form volume terms of cell c's polynomial u, per reference basis
+    function: (div sigma, grad v) in the velocity-stress layout, tested on phi_i."""
+    for i in range(nb):
+        for k in range(5):
+            s0 = 0.0
+            s1 = 0.0
+            for j in range(nb):
+                s0 += S0[i, j] * u[j, k]
+                s1 += S1[i, j] * u[j, k]
+            g0[i, k] = s0
+            g1[i, k] = s1
+    j00, j01, j10, j11 = Jinv[c, 0, 0], Jinv[c, 0, 1], Jinv[c, 1, 0], Jinv[c, 1, 1]
+    for i in range(nb):
+        # d/dx = Jinv[0,0] d/dX0 + Jinv[1,0] d/dX1 ; d/dy = Jinv[0,1] d/dX0 + Jinv[1,1] d/dX1
+        dx_vx = j00 * g0[i, 0] + j10 * g1[i, 0]
+        dy_vx = j01 * g0[i, 0] + j11 * g1[i, 0]
+        dx_vy = j00 * g0[i, 1] + j10 * g1[i, 1]
+        dy_vy = j01 * g0[i, 1] + j11 * g1[i, 1]
+        dx_sxx = j00 * g0[i, 2] + j10 * g1[i, 2]
+        dy_syy = j01 * g0[i, 3] + j11 * g1[i, 3]
+        dx_sxy = j00 * g0[i, 4] + j10 * g1[i, 4]
+        dy_sxy = j01 * g0[i, 4] + j11 * g1[i, 4]
+        r[i, 0] = dx_sxx + dy_sxy
+        r[i, 1] = dx_sxy + dy_syy
+        r[i, 2] = dx_vx
+        r[i, 3] = dy_vy
+        r[i, 4] = dy_vx + dx_vy
+
+
+@njit_inline
+def _material(w, t, B, nb):
+    """w = B^{-1} t node by node, with B^{-1} packed as in ``Btab`` (see below)."""
+    b00, b11 = B[0], B[1]
+    c22, c23, c24, c32, c33, c34 = B[2], B[3], B[4], B[5], B[6], B[7]
+    c42, c43, c44 = B[8], B[9], B[10]
+    for a in range(nb):
+        t2, t3, t4 = t[a, 2], t[a, 3], t[a, 4]
+        w[a, 0] = b00 * t[a, 0]
+        w[a, 1] = b11 * t[a, 1]
+        w[a, 2] = c22 * t2 + c23 * t3 + c24 * t4
+        w[a, 3] = c32 * t2 + c33 * t3 + c34 * t4
+        w[a, 4] = c42 * t2 + c43 * t3 + c44 * t4
+
+
+@njit_inline
+def _inverse_mass(w, r, tmp, Minv_ref, B, nb):
+    """w = (Minv_ref kron B^{-1}) r."""
+    for a in range(nb):
+        for k in range(5):
+            acc = 0.0
+            for b in range(nb):
+                acc += Minv_ref[a, b] * r[b, k]
+            tmp[a, k] = acc
+    _material(w, tmp, B, nb)
+
+
+@njit_inline
+def _store(out, w, dofs, c, nb, contig):
+    for a in range(nb):
+        base = 5 * (nb * c + a) if contig else 5 * dofs[c, a]
+        for k in range(5):
+            out[base + k] = w[a, k]
+
+
+@njit_inline
+def _taylor_integral(acc, u, r, g0, g1, D0, D1, Jinv, c, B, dt, order, nb):
+    """acc = sum_{k=0..order} dt^(k+1)/(k+1)! D^k u for cell c (u is overwritten)."""
+    for j in range(nb):
+        for k in range(5):
+            acc[j, k] = dt * u[j, k]
+    coef = dt
+    for m in range(1, order + 1):
+        _strong_volume(r, u, g0, g1, D0, D1, Jinv, c, nb)
+        _material(u, r, B, nb)
+        coef *= dt / (m + 1)
+        for j in range(nb):
+            for k in range(5):
+                acc[j, k] += coef * u[j, k]
+
+
 @functools.lru_cache(maxsize=None)
 def _kernels(nb, nk, contig=False):
     """The (volume + inverse mass, interior facet flux, facet dissipation, cell energies)
     kernels for ``nb`` basis functions per cell and ``nk`` on a facet, compiled with both as
     constants: LLVM then unrolls the small loops (2-3x faster than with run-time sizes at
     p = 1-3; numba caches each set)."""
-
-    @njit_inline
-    def load(u, X, dofs, c):
-        for j in range(nb):
-            base = 5 * (nb * c + j) if contig else 5 * dofs[c, j]
-            for k in range(5):
-                u[j, k] = X[base + k]
-
-    @njit_inline
-    def strong_volume(r, u, g0, g1, S0, S1, Jinv, c):
-        """r = the strong-form volume terms of cell c's polynomial u, per reference basis
-        function: (div sigma, grad v) in the velocity-stress layout, tested on phi_i."""
-        for i in range(nb):
-            for k in range(5):
-                s0 = 0.0
-                s1 = 0.0
-                for j in range(nb):
-                    s0 += S0[i, j] * u[j, k]
-                    s1 += S1[i, j] * u[j, k]
-                g0[i, k] = s0
-                g1[i, k] = s1
-        j00, j01, j10, j11 = Jinv[c, 0, 0], Jinv[c, 0, 1], Jinv[c, 1, 0], Jinv[c, 1, 1]
-        for i in range(nb):
-            # d/dx = Jinv[0,0] d/dX0 + Jinv[1,0] d/dX1 ; d/dy = Jinv[0,1] d/dX0 + Jinv[1,1] d/dX1
-            dx_vx = j00 * g0[i, 0] + j10 * g1[i, 0]
-            dy_vx = j01 * g0[i, 0] + j11 * g1[i, 0]
-            dx_vy = j00 * g0[i, 1] + j10 * g1[i, 1]
-            dy_vy = j01 * g0[i, 1] + j11 * g1[i, 1]
-            dx_sxx = j00 * g0[i, 2] + j10 * g1[i, 2]
-            dy_syy = j01 * g0[i, 3] + j11 * g1[i, 3]
-            dx_sxy = j00 * g0[i, 4] + j10 * g1[i, 4]
-            dy_sxy = j01 * g0[i, 4] + j11 * g1[i, 4]
-            r[i, 0] = dx_sxx + dy_sxy
-            r[i, 1] = dx_sxy + dy_syy
-            r[i, 2] = dx_vx
-            r[i, 3] = dy_vy
-            r[i, 4] = dy_vx + dx_vy
-
-    @njit_inline
-    def material(w, t, B):
-        """w = B^{-1} t node by node, with B^{-1} packed as in ``Btab`` (see below)."""
-        b00, b11 = B[0], B[1]
-        c22, c23, c24, c32, c33, c34 = B[2], B[3], B[4], B[5], B[6], B[7]
-        c42, c43, c44 = B[8], B[9], B[10]
-        for a in range(nb):
-            t2, t3, t4 = t[a, 2], t[a, 3], t[a, 4]
-            w[a, 0] = b00 * t[a, 0]
-            w[a, 1] = b11 * t[a, 1]
-            w[a, 2] = c22 * t2 + c23 * t3 + c24 * t4
-            w[a, 3] = c32 * t2 + c33 * t3 + c34 * t4
-            w[a, 4] = c42 * t2 + c43 * t3 + c44 * t4
-
-    @njit_inline
-    def inverse_mass(w, r, tmp, Minv_ref, B):
-        """w = (Minv_ref kron B^{-1}) r."""
-        for a in range(nb):
-            for k in range(5):
-                acc = 0.0
-                for b in range(nb):
-                    acc += Minv_ref[a, b] * r[b, k]
-                tmp[a, k] = acc
-        material(w, tmp, B)
-
-    @njit_inline
-    def store(out, w, dofs, c):
-        for a in range(nb):
-            base = 5 * (nb * c + a) if contig else 5 * dofs[c, a]
-            for k in range(5):
-                out[base + k] = w[a, k]
 
     @njit
     def volume_and_inverse(out, R, X, dofs, ncells, S0, S1, Jinv, invdet, Minv_ref, mat, Btab):
@@ -147,15 +170,15 @@ def _kernels(nb, nk, contig=False):
         r = np.empty((nb, 5))
         tmp = np.empty((nb, 5))
         for c in range(ncells):
-            load(u, X, dofs, c)
-            strong_volume(r, u, g0, g1, S0, S1, Jinv, c)
+            _load(u, X, dofs, c, nb, contig)
+            _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb)
             e = invdet[c]  # (R + |det J| vol) / |det J|
             for i in range(nb):
                 for k in range(5):
                     r[i, k] += e * R[c, i, k]
                     R[c, i, k] = 0.0  # cleared for the next stage (saves a separate pass)
-            inverse_mass(u, r, tmp, Minv_ref, Btab[mat[c]])
-            store(out, u, dofs, c)
+            _inverse_mass(u, r, tmp, Minv_ref, Btab[mat[c]], nb)
+            _store(out, u, dofs, c, nb, contig)
 
     @njit
     def ader_predictor(I, X, dofs, ncells, D0, D1, Jinv, mat, Btab, dt, order):
@@ -169,20 +192,39 @@ def _kernels(nb, nk, contig=False):
         r = np.empty((nb, 5))
         acc = np.empty((nb, 5))
         for c in range(ncells):
-            load(u, X, dofs, c)
+            _load(u, X, dofs, c, nb, contig)
+            _taylor_integral(acc, u, r, g0, g1, D0, D1, Jinv, c, Btab[mat[c]], dt, order, nb)
+            _store(I, acc, dofs, c, nb, contig)
+
+    @njit
+    def ader_corrector(x, I, R, dofs, ncells, S0, S1, Jinv, invdet, Minv_ref, mat, Btab, D0, D1, dt, order):
+        """Per owned cell: x += M_c^{-1} (R[c] + volume terms of I) (ADER's corrector, R[c]
+        holding the facet fluxes of I; R[c] is zeroed), then I = the predictor's time integral
+        from the new x (:func:`ader_predictor`) for the next step: one pass for what would be
+        the volume kernel, the update and the next predictor."""
+        u = np.empty((nb, 5))
+        g0 = np.empty((nb, 5))
+        g1 = np.empty((nb, 5))
+        r = np.empty((nb, 5))
+        tmp = np.empty((nb, 5))
+        acc = np.empty((nb, 5))
+        for c in range(ncells):
+            _load(u, I, dofs, c, nb, contig)
+            _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb)
+            e = invdet[c]
+            for i in range(nb):
+                for k in range(5):
+                    r[i, k] += e * R[c, i, k]
+                    R[c, i, k] = 0.0
+            B = Btab[mat[c]]
+            _inverse_mass(acc, r, tmp, Minv_ref, B, nb)
+            _load(u, x, dofs, c, nb, contig)
             for j in range(nb):
                 for k in range(5):
-                    acc[j, k] = dt * u[j, k]
-            coef = dt
-            B = Btab[mat[c]]
-            for m in range(1, order + 1):
-                strong_volume(r, u, g0, g1, D0, D1, Jinv, c)
-                material(u, r, B)
-                coef *= dt / (m + 1)
-                for j in range(nb):
-                    for k in range(5):
-                        acc[j, k] += coef * u[j, k]
-            store(I, acc, dofs, c)
+                    u[j, k] += acc[j, k]
+            _store(x, u, dofs, c, nb, contig)
+            _taylor_integral(acc, u, r, g0, g1, D0, D1, Jinv, c, B, dt, order, nb)
+            _store(I, acc, dofs, c, nb, contig)
 
     @njit
     def facet_fluxes(R, X, dofs, fcells, fcodes, normal, length, fnodes, Mf, Zd, Zs, nowned):
@@ -370,7 +412,12 @@ def _kernels(nb, nk, contig=False):
         return 0.5 * kin, 0.5 * strain
 
     return (volume_and_inverse, facet_fluxes, facet_dissipation, cell_energies, boundary_fluxes, boundary_energy,
-            ader_predictor)
+            ader_predictor, ader_corrector)
+
+
+@functools.lru_cache(maxsize=None)
+def _gauss_legendre(n):
+    return np.polynomial.legendre.leggauss(n)
 
 
 def facet_nodes(ref, tables, qw):
@@ -556,7 +603,7 @@ class MatrixFreeOperator:
         self.tables = tables
         self.fnodes, self.Mf = facet_nodes(ref, tables, self.qw)
         (self._volume, self._facets, self._dissipation, self._energies, self._boundary,
-         self._boundary_energy, self._predictor) = _kernels(nb, self.fnodes.shape[1], self.contiguous)
+         self._boundary_energy, self._predictor, self._corrector) = _kernels(nb, self.fnodes.shape[1], self.contiguous)
         c_off, c_arr = compat.connectivity(mesh, tdim - 1, tdim)
         facets = np.asarray(facets, dtype=np.int64)
         # facets of the outer ghost layer see one cell here: a ghost, so nothing to add
@@ -637,6 +684,7 @@ class MatrixFreeOperator:
         self.G = self.G0.copy()
         self._bstatic = not (self._bhist or self._bouter)
         self._G_scaled = False
+        self._G_acc = None
 
     def integrate_boundary_data(self, t, dt, npoints):
         """G = the integral of the outer data over [t, t + dt], by Gauss-Legendre quadrature
@@ -646,11 +694,16 @@ class MatrixFreeOperator:
             np.multiply(self.G0, dt, out=self.G)
             self._G_scaled = True
             return
-        xi, w = np.polynomial.legendre.leggauss(npoints)
-        acc = np.zeros_like(self.G)
-        for xq, wq in zip(xi, w):
-            self.boundary_data(t + 0.5 * dt * (1.0 + xq))
-            acc += (0.5 * dt * wq) * self.G
+        xi, w = _gauss_legendre(npoints)
+        if self._G_acc is None:
+            self._G_acc = np.empty_like(self.G)
+        acc = self._G_acc
+        for q in range(npoints):
+            self.boundary_data(t + 0.5 * dt * (1.0 + xi[q]))
+            if q == 0:
+                np.multiply(self.G, 0.5 * dt * w[q], out=acc)
+            else:
+                acc += (0.5 * dt * w[q]) * self.G
         self.G[:] = acc
         self._G_scaled = True
 
@@ -665,9 +718,23 @@ class MatrixFreeOperator:
         """I = sum_{k=0..order} dt^(k+1)/(k+1)! D^k x (:meth:`local_derivative`), the time
         integral of the cell-local Taylor predictor over [t, t + dt] (ADER's
         Cauchy-Kovalevskaya step), in one compiled pass; ``x``, ``I``: owned values."""
+        self._predictor(I, x, self.dofs, self.nowned, *self._derivatives(), self.Jinv, self.mat, self.Btab, float(dt),
+                        int(order))
+
+    def ader_correct(self, x, I, dt, order):
+        """x += M^{-1}(R + volume terms of I), ``R`` holding the facet fluxes of I from
+        :meth:`begin` (the ADER corrector), then I = the predictor's integral from the new x
+        over the next step of length dt (:meth:`ader_predictor`), in one compiled pass;
+        ``x``, ``I``: owned values."""
+        self._corrector(x, I, self.R, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
+                        self.Minv_ref, self.mat, self.Btab, *self._derivatives(), float(dt), int(order))
+        self._R_clear = True
+
+    def _derivatives(self):
+        """The nodal derivative matrices D_r = Minv_ref S_r (computed when first asked for)."""
         if self._D is None:
             self._D = tuple(np.ascontiguousarray(self.Minv_ref @ S) for S in (self.S0, self.S1))
-        self._predictor(I, x, self.dofs, self.nowned, *self._D, self.Jinv, self.mat, self.Btab, float(dt), int(order))
+        return self._D
 
     def boundary_data(self, t):
         """The outer data G of the boundary facets at time t (histories and outer states)."""

@@ -102,10 +102,14 @@ LOW_STORAGE = {
 #: operator D (Cauchy-Kovalevskaya; D^(p+1) = 0 on P_p, so the local series is exact), its
 #: time integral I = sum_k dt^(k+1)/(k+1)! D^k x, and one corrector x += L(I) with the
 #: boundary data integrated over the step (Gauss-Legendre).  Order p + 1 in space and time.
-#: C_max from the amplification symbol I + L(theta) P(D) on infinite structured meshes
-#: (tests/cfl_calibration.py), per degree; the constants keep rk4's margin (0.909 of the
-#: "right" limit, the smaller one).  Crack interfaces (nonlinear, with their own state)
-#: need the Runge-Kutta schemes.
+#: C_max from the spectral radius of the amplification symbol I + C A(theta) P(C D),
+#: P(z) = sum_k z^k/(k+1)!, on infinite structured meshes (tests/cfl_calibration.py), rock:
+#: "right" p = 1..4: 0.813, 0.762, 0.707, 0.624; "crossed" p = 1..3: 0.895, 0.828, 0.766.
+#: Per application (C_max/(p + 1), the local derivatives counted as full ones) that is
+#: 0.41, 0.25, 0.18, 0.12, but a local derivative costs about half a full application.  The
+#: constants are 0.90 of the "right" limit (rk4's margin at p = 4); 1.5 C blows up and is
+#: stopped (tests/test_bulk.py::test_cfl_*).  Crack interfaces (nonlinear, with their own
+#: state) need the Runge-Kutta schemes.
 ADER = "ader"
 ADER_CFL = {1: 0.73, 2: 0.69, 3: 0.64, 4: 0.56}
 
@@ -296,6 +300,7 @@ class Solver:
         self.crack_facets = np.zeros(0, dtype=np.int32) if crack_facets is None else np.asarray(crack_facets, np.int32)
         self._build_operators()
         self.extensions = []
+        self._ader_next = None  # (x's state, dt) for which the ADER predictor in _work[0] holds
         self.t = 0.0
         self.step_count = 0
         self.energy = EnergyBudget()
@@ -718,12 +723,15 @@ class Solver:
 
     def _step_ader(self):
         """One ADER step (:data:`ADER`): the predictor's time integral I over the step from p
-        cell-local derivatives, one ghost update of I, and x += M^{-1}(K I + the boundary
-        data integrated over the step)."""
+        cell-local derivatives, one ghost update of I, the facet fluxes of I with the boundary
+        data integrated over the step, and x += M^{-1}(K I + those data).  The corrector's
+        pass also computes the next step's I; it is reused while x and dt are unchanged
+        (x's PETSc state counter: any write through ``x.array`` or a local form invalidates it)."""
         t0 = time.perf_counter()
         mf, dt, x = self.matfree, self.dt, self.x
-        I, k = self._work
-        mf.ader_predictor(x.array_r, I.array, dt, self.degree)
+        I, _ = self._work
+        if self._ader_next != (x.stateGet(), dt):
+            mf.ader_predictor(x.array_r, I.array, dt, self.degree)
         mf.integrate_boundary_data(self.t, dt, (self.degree + 2) // 2)
         if self.comm.size > 1:
             I.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
@@ -731,8 +739,8 @@ class Solver:
         t0 = time.perf_counter()
         with I.localForm() as il:
             mf.begin(il.array_r, self.t, data=False)
-            mf.finish(il.array_r, k.array)
-        x.axpy(1.0, k)
+        mf.ader_correct(x.array, I.array, dt, self.degree)
+        self._ader_next = (x.stateGet(), dt)
         self.t += dt
         self.step_count += 1
         self.timers.add("bulk operator", time.perf_counter() - t0)
