@@ -14,7 +14,8 @@
 #    on three structured meshes of the unit square each (the largest has ~0.4-0.55
 #    million DOFs), for both bulk operators side by side on the same mesh: the
 #    matrix-free kernels (default) and the assembled BAIJ matrix; also the operator
-#    application alone.  File ``bulk_throughput_n<ranks>.csv``.
+#    application alone; and the matrix-free ADER step (:data:`hydrofrac.solver.ADER`) in
+#    unknown·steps/s against rk4's.  File ``bulk_throughput_n<ranks>.csv``.
 # 2. **Memory bandwidth** of the machine: a NumPy copy of a 128 MiB array on every
 #    rank at once, counted as bytes read + bytes written per second (the
 #    write-allocate read of the destination is not counted, so this is a
@@ -68,7 +69,7 @@ from hydrofrac.postprocess.rundata import write_csv
 from hydrofrac.postprocess.study_common import log_axes, plane_wave_solver, save_figure
 from hydrofrac.postprocess.study_work_precision import TRAVEL, state_pt
 from hydrofrac.postprocess.study_work_precision import state as plane_wave
-from hydrofrac.solver import LOW_STORAGE, TABLEAUX, Solver
+from hydrofrac.solver import LOW_STORAGE, TABLEAUX, Solver, default_cfl
 # -
 
 # ## Sizes
@@ -211,9 +212,9 @@ def timed(comm, fn, count):
     return comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
 
 
-def throughput_case(comm, p, N, bandwidth, operator, mesh, peak=None):
+def throughput_case(comm, p, N, bandwidth, operator, mesh, peak=None, scheme="rk4"):
     t0 = time.perf_counter()
-    solver = Solver(mesh, p, ROCK, operator=operator)
+    solver = Solver(mesh, p, ROCK, operator=operator, scheme=scheme)
     setup = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
     x = solver.x.duplicate()
     x.setRandom()
@@ -227,8 +228,15 @@ def throughput_case(comm, p, N, bandwidth, operator, mesh, peak=None):
     wall = timed(comm, solver.step, steps)
     mults = max(3, steps * s)
     wall_mult = timed(comm, lambda: solver.rhs(x, 0.0, y), mults)
-    op_bytes, rk_bytes = bytes_per_dof_stage(solver)
     rate = n * s * steps / wall
+    if scheme == "ader":  # (no byte or flop model: its step is one fused pass, see docs/benchmarks.md)
+        for v in (x, y):
+            v.destroy()
+        return {"operator": f"{operator} ader", "p": p, "N": N, "cells": solver.num_cells, "dofs": n,
+                "ranks": comm.size, "setup_s": setup, "steps": steps, "stages": s, "wall_s": wall,
+                "dof_stages_per_s": rate, "dof_stages_per_s_per_rank": rate / comm.size,
+                "unknown_steps_per_s_per_rank": n * steps / wall / comm.size}
+    op_bytes, rk_bytes = bytes_per_dof_stage(solver)
     row = {
         "operator": operator, "p": p, "N": N, "cells": solver.num_cells, "dofs": n, "ranks": comm.size, "setup_s": setup,
         "steps": steps, "stages": s, "wall_s": wall, "dof_stages_per_s": rate, "dof_stages_per_s_per_rank": rate / comm.size,
@@ -237,6 +245,7 @@ def throughput_case(comm, p, N, bandwidth, operator, mesh, peak=None):
         "bandwidth_GBs": bandwidth / 1e9,
         "fraction_of_bound": rate * (op_bytes + rk_bytes) / bandwidth,
         "mult_fraction_of_bound": n * mults / wall_mult * op_bytes / bandwidth,
+        "unknown_steps_per_s_per_rank": n * steps / wall / comm.size,
     }
     flops = flops_per_dof_stage(solver)
     if flops is not None and peak:  # one core's peak per rank
@@ -308,13 +317,13 @@ def rate_table(rows):
              "peak-flop fraction |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        steps = r['dof_stages_per_s_per_rank'] / r['stages']
         fl = (f"{r['flops_per_dof_stage']:.0f} | {r['fraction_of_peak_flops']:.3f}" if "flops_per_dof_stage" in r
               else "— | —")
+        by = (f"{r['bytes_per_dof_stage']:.0f} | {r['fraction_of_bound']:.2f} | {r['mult_fraction_of_bound']:.2f}"
+              if "bytes_per_dof_stage" in r else "— | — | —")
         lines.append(f"| {r['operator']} | {r['p']} | {r['N']} | {r['dofs']} | {r['ranks']} | "
                      f"{r['dof_stages_per_s']:.3g} | "
-                     f"{r['dof_stages_per_s_per_rank']:.3g} | {steps:.3g} | {r['bytes_per_dof_stage']:.0f} | "
-                     f"{r['fraction_of_bound']:.2f} | {r['mult_fraction_of_bound']:.2f} | {fl} |")
+                     f"{r['dof_stages_per_s_per_rank']:.3g} | {r['unknown_steps_per_s_per_rank']:.3g} | {by} | {fl} |")
     return "\n".join(lines)
 
 
@@ -362,6 +371,12 @@ def main(argv=None):
                           + (f"; {r['flops_per_dof_stage']:.0f} flop/DOF*stage, {r['fraction_of_peak_flops']:.3f} "
                              "of the peak" if "flops_per_dof_stage" in r else ""))
             log(comm, f"[bench]           matrix-free / assembled step rate: {pair['matfree'] / pair['assembled']:.2f}")
+            r = throughput_case(comm, p, N, bandwidth, "matfree", mesh, scheme="ader")
+            rows.append(r)
+            rk4 = next(q for q in rows if q["operator"] == "matfree" and q["p"] == p and q["N"] == N)
+            log(comm, f"[bench] ADER      p={p} N={N:4d}: {r['unknown_steps_per_s_per_rank']:.3g} unknown*steps/s per "
+                      f"rank, {r['unknown_steps_per_s_per_rank'] / rk4['unknown_steps_per_s_per_rank']:.2f}x rk4's; "
+                      f"its step is {default_cfl('ader', p) / default_cfl('rk4', p):.2f}x as long")
     if comm.rank == 0:
         write_csv(out / f"bulk_throughput_n{comm.size}.csv", rows)
         print(rate_table(rows), flush=True)
