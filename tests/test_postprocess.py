@@ -294,3 +294,25 @@ def test_sequence_sheet_has_no_empty_panel_and_pictures_a_length_scale(tmp_path)
     assert sheet.getpixel((10, 60)) == (255, 255, 255) and sheet.getpixel((170, 60)) == (255, 255, 255)
     assert sheet.getpixel((45, 60)) != (255, 255, 255) and sheet.getpixel((135, 60)) != (255, 255, 255)
     assert [nice_length(s) for s in (6.0, 1.0, 0.33, 3.2)] == [1.0, 0.2, 0.05, 0.5]
+
+
+def test_time_scheme_study_quick(tmp_path):
+    """``study_time_schemes --quick`` runs every scheme, ADER included, and writes its CSV and
+    chart.  At each scheme's documented CFL constant the time error is far below the spatial
+    one (docs/benchmarks.md, "Time schemes"), so on each mesh every scheme's error is rk4's
+    within 10 % (ADER's fixed-mesh defect included); each halving of h divides every
+    scheme's error by more than 2^(p + 0.8)."""
+    from hydrofrac.postprocess import study_time_schemes as st
+    rows = st.main(["--quick", "--out", str(tmp_path)])
+    assert (tmp_path / "time_schemes.csv").exists() and (tmp_path / "time_schemes.png").exists()
+    main = [r for r in rows if not r["dt_series"]]
+    assert {r["scheme"] for r in main} == set(st.SCHEMES)
+    for p, Ns in st.QUICK.items():
+        for N in Ns:
+            ref = next(r["rel_error"] for r in main if r["scheme"] == "rk4" and r["degree"] == p and r["N"] == N)
+            for r in main:
+                if r["degree"] == p and r["N"] == N:
+                    assert abs(r["rel_error"] - ref) <= 0.1 * ref, (r["method"], N, r["rel_error"], ref)
+        for scheme in st.SCHEMES:
+            e = [r["rel_error"] for r in sorted(main, key=lambda r: r["N"]) if r["scheme"] == scheme and r["degree"] == p]
+            assert e[0] / e[1] > 2 ** (p + 0.8), (scheme, p, e)
