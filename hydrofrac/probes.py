@@ -21,23 +21,45 @@ FIELDS = ("v_x", "v_y", "s_xx", "s_yy", "s_xy")
 CRACK_FIELDS = ("opening", "slip", "traction_n", "traction_t", "D", "eta", "f_p")
 
 
-def field_at(solver, points) -> np.ndarray:
-    """(m, 5): v and σ at ``points`` (m, 2), the same on every rank (collective)."""
-    X = np.asarray(points, dtype=float).reshape(-1, 2)
+#: point sets whose location (owned cells, basis values, dof rows) each solver keeps: the
+#: growth criterion samples the same points around a tip at every check until it moves
+LOCATION_CACHE = 16
+
+
+def _located(solver, X):
+    """(points, their owned cells' dof rows, basis values, count per point) of the owned
+    cells that contain the points ``X`` (m, 2): this rank's part, cached per solver (a new
+    mesh has a new solver) and point set."""
+    key = X.tobytes()
+    cache = solver.__dict__.setdefault("_probe_locations", {})
+    hit = cache.get(key)
+    if hit is not None:
+        return hit
     nloc = compat.num_cells_local(solver.mesh)
     pts, cells = compat.cells_containing(solver.mesh, X)
     own = cells < nloc
     pts, cells = pts[own], cells[own]
+    g = solver.geometry
+    ref = np.einsum("cij,cj->ci", g.Jinv[cells], X[pts] - g.x0[cells])
+    phi = solver.ref.tabulate(ref) if cells.size else np.zeros((0, compat.cell_dofs(solver.V).shape[1]))
+    cnt = np.bincount(pts, minlength=X.shape[0]).astype(float)
+    hit = (pts, compat.cell_dofs(solver.V)[cells], phi, cnt)
+    if len(cache) >= LOCATION_CACHE:
+        cache.pop(next(iter(cache)))
+    cache[key] = hit
+    return hit
+
+
+def field_at(solver, points) -> np.ndarray:
+    """(m, 5): v and σ at ``points`` (m, 2), the same on every rank (collective)."""
+    X = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
+    pts, rows, phi, cnt = _located(solver, X)
     out = np.zeros((X.shape[0], 5))
-    cnt = np.zeros(X.shape[0])
-    if cells.size:
-        g = solver.geometry
-        ref = np.einsum("cij,cj->ci", g.Jinv[cells], X[pts] - g.x0[cells])
-        phi = solver.ref.tabulate(ref)  # (k, nb)
+    cnt = cnt.copy()
+    if pts.size:
         U = solver.x.array_r.reshape(-1, 5)
-        vals = np.einsum("kn,knc->kc", phi, U[compat.cell_dofs(solver.V)[cells]])
+        vals = np.einsum("kn,knc->kc", phi, U[rows])
         np.add.at(out, pts, vals)
-        np.add.at(cnt, pts, 1.0)
     comm = solver.comm
     comm.Allreduce(MPI.IN_PLACE, out, op=MPI.SUM)
     comm.Allreduce(MPI.IN_PLACE, cnt, op=MPI.SUM)
