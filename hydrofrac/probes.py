@@ -27,9 +27,10 @@ LOCATION_CACHE = 16
 
 
 def _located(solver, X):
-    """(points, their owned cells' dof rows, basis values, count per point) of the owned
-    cells that contain the points ``X`` (m, 2): this rank's part, cached per solver (a new
-    mesh has a new solver) and point set."""
+    """(points, their owned cells' dof rows, basis values, the number of owned cells that
+    contain each point over all ranks) for the points ``X`` (m, 2); this rank's part of the
+    first three.  Cached per solver (a new mesh has a new solver) and point set; the count
+    is reduced when a point set is first located (collective)."""
     key = X.tobytes()
     cache = solver.__dict__.setdefault("_probe_locations", {})
     hit = cache.get(key)
@@ -43,6 +44,7 @@ def _located(solver, X):
     ref = np.einsum("cij,cj->ci", g.Jinv[cells], X[pts] - g.x0[cells])
     phi = solver.ref.tabulate(ref) if cells.size else np.zeros((0, compat.cell_dofs(solver.V).shape[1]))
     cnt = np.bincount(pts, minlength=X.shape[0]).astype(float)
+    solver.comm.Allreduce(MPI.IN_PLACE, cnt, op=MPI.SUM)
     hit = (pts, compat.cell_dofs(solver.V)[cells], phi, cnt)
     if len(cache) >= LOCATION_CACHE:
         cache.pop(next(iter(cache)))
@@ -55,14 +57,11 @@ def field_at(solver, points) -> np.ndarray:
     X = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
     pts, rows, phi, cnt = _located(solver, X)
     out = np.zeros((X.shape[0], 5))
-    cnt = cnt.copy()
     if pts.size:
         U = solver.x.array_r.reshape(-1, 5)
         vals = np.einsum("kn,knc->kc", phi, U[rows])
         np.add.at(out, pts, vals)
-    comm = solver.comm
-    comm.Allreduce(MPI.IN_PLACE, out, op=MPI.SUM)
-    comm.Allreduce(MPI.IN_PLACE, cnt, op=MPI.SUM)
+    solver.comm.Allreduce(MPI.IN_PLACE, out, op=MPI.SUM)
     with np.errstate(invalid="ignore", divide="ignore"):
         return out / cnt[:, None]
 
