@@ -114,6 +114,10 @@ ADER = "ader"
 ADER_CFL = {1: 0.73, 2: 0.69, 3: 0.64, 4: 0.56}
 
 
+#: every time scheme the solver has
+SCHEMES = tuple(TABLEAUX) + tuple(LOW_STORAGE) + (ADER,)
+
+
 def default_cfl(scheme: str, degree: int) -> float:
     """The documented stable CFL constant of ``scheme`` at degree p (:data:`CFL_DEFAULT`,
     :data:`ADER_CFL`)."""
@@ -244,9 +248,8 @@ class Solver:
                           f"kernels implement ({', '.join(IMPLEMENTED_FORMS)}): using the operator assembled from "
                           "the edited forms", flush=True)
         self.operator = operator
-        if scheme not in TABLEAUX and scheme not in LOW_STORAGE and scheme != ADER:
-            raise ValueError(f"scheme must be one of {sorted(TABLEAUX) + sorted(LOW_STORAGE) + [ADER]}; "
-                             f"got {scheme!r}")
+        if scheme not in SCHEMES:
+            raise ValueError(f"scheme must be one of {list(SCHEMES)}; got {scheme!r}")
         if scheme == ADER and operator != "matfree":
             raise ValueError("scheme 'ader' needs the matrix-free operator (its predictor is the cell-local volume "
                              "kernel): use operator='matfree' with the forms the kernels implement, or a Runge-Kutta "
