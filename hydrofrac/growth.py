@@ -23,7 +23,7 @@ from mpi4py import MPI
 
 from . import riemann as rm
 from .material import ROCK
-from .probes import stress_at
+from .probes import stresses_at
 
 
 #: trial directions closer than this [deg] to the plane of a crack that a tip met are not
@@ -136,10 +136,9 @@ def effective_stress_profiles(solver, tips, params: GrowthParams):
         frames.append((np.asarray(tip, dtype=float) + params.r * t, t, n))
     if not frames:
         return []
-    sig = stress_at(solver, np.concatenate([f[0] for f in frames]))
+    sigs = stresses_at(solver, [f[0] for f in frames])  # (each tip's samples located once, while it stays)
     out = []
-    for k, (_, t, n) in enumerate(frames):
-        sg = sig[k * theta.size:(k + 1) * theta.size]
+    for sg, (_, t, n) in zip(sigs, frames):
         tr = np.einsum("mij,mj->mi", sg, n)
         sn = np.einsum("mi,mi->m", tr, n)
         st = np.einsum("mi,mi->m", tr, t)

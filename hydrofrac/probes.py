@@ -54,21 +54,42 @@ def _located(solver, X):
 
 def field_at(solver, points) -> np.ndarray:
     """(m, 5): v and σ at ``points`` (m, 2), the same on every rank (collective)."""
-    X = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
-    pts, rows, phi, cnt = _located(solver, X)
-    out = np.zeros((X.shape[0], 5))
-    if pts.size:
-        U = solver.x.array_r.reshape(-1, 5)
-        vals = np.einsum("kn,knc->kc", phi, U[rows])
-        np.add.at(out, pts, vals)
+    return fields_at(solver, [points])[0]
+
+
+def fields_at(solver, point_sets) -> list:
+    """:func:`field_at` of several point sets (each located and cached on its own, e.g. one
+    per crack tip) with one reduction for all (collective)."""
+    sets = [np.ascontiguousarray(X, dtype=float).reshape(-1, 2) for X in point_sets]
+    sizes = [X.shape[0] for X in sets]
+    out = np.zeros((sum(sizes), 5))
+    counts = []
+    start = 0
+    for X, m in zip(sets, sizes):
+        pts, rows, phi, cnt = _located(solver, X)
+        if pts.size:
+            U = solver.x.array_r.reshape(-1, 5)
+            np.add.at(out, start + pts, np.einsum("kn,knc->kc", phi, U[rows]))
+        counts.append(cnt)
+        start += m
     solver.comm.Allreduce(MPI.IN_PLACE, out, op=MPI.SUM)
+    cnt = np.concatenate(counts) if counts else np.zeros(0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return out / cnt[:, None]
+        vals = out / cnt[:, None]
+    return np.split(vals, np.cumsum(sizes)[:-1]) if sets else []
 
 
 def stress_at(solver, points) -> np.ndarray:
     """(m, 2, 2) total stress at ``points`` (see :func:`field_at`)."""
-    f = field_at(solver, points)
+    return _stress(field_at(solver, points))
+
+
+def stresses_at(solver, point_sets) -> list:
+    """:func:`stress_at` of several point sets, with one reduction (:func:`fields_at`)."""
+    return [_stress(f) for f in fields_at(solver, point_sets)]
+
+
+def _stress(f):
     return np.stack([np.stack([f[:, 2], f[:, 4]], -1), np.stack([f[:, 4], f[:, 3]], -1)], axis=1)
 
 
