@@ -151,6 +151,20 @@ def _taylor_integral(acc, u, r, g0, g1, D0, D1, Jinv, c, B, dt, order, nb):
                 acc[j, k] += coef * u[j, k]
 
 
+@njit_inline
+def _cell_rate(w, u, r, g0, g1, tmp, X, dofs, R, S0, S1, Jinv, invdet, Minv_ref, B, c, nb, contig):
+    """w = M_c^{-1} (R[c] + volume terms of X on cell c), and R[c] zeroed (cleared for the
+    next stage: that saves a separate pass); ``u``, ``r``, ``g0``, ``g1``, ``tmp``: scratch."""
+    _load(u, X, dofs, c, nb, contig)
+    _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb)
+    e = invdet[c]  # (R + |det J| vol) / |det J|
+    for i in range(nb):
+        for k in range(5):
+            r[i, k] += e * R[c, i, k]
+            R[c, i, k] = 0.0
+    _inverse_mass(w, r, tmp, Minv_ref, B, nb)
+
+
 @functools.lru_cache(maxsize=None)
 def _kernels(nb, nk, contig=False):
     """The (volume + inverse mass, interior facet flux, facet dissipation, cell energies)
@@ -170,14 +184,7 @@ def _kernels(nb, nk, contig=False):
         r = np.empty((nb, 5))
         tmp = np.empty((nb, 5))
         for c in range(ncells):
-            _load(u, X, dofs, c, nb, contig)
-            _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb)
-            e = invdet[c]  # (R + |det J| vol) / |det J|
-            for i in range(nb):
-                for k in range(5):
-                    r[i, k] += e * R[c, i, k]
-                    R[c, i, k] = 0.0  # cleared for the next stage (saves a separate pass)
-            _inverse_mass(u, r, tmp, Minv_ref, Btab[mat[c]], nb)
+            _cell_rate(u, u, r, g0, g1, tmp, X, dofs, R, S0, S1, Jinv, invdet, Minv_ref, Btab[mat[c]], c, nb, contig)
             _store(out, u, dofs, c, nb, contig)
 
     @njit
@@ -209,15 +216,8 @@ def _kernels(nb, nk, contig=False):
         tmp = np.empty((nb, 5))
         acc = np.empty((nb, 5))
         for c in range(ncells):
-            _load(u, I, dofs, c, nb, contig)
-            _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb)
-            e = invdet[c]
-            for i in range(nb):
-                for k in range(5):
-                    r[i, k] += e * R[c, i, k]
-                    R[c, i, k] = 0.0
             B = Btab[mat[c]]
-            _inverse_mass(acc, r, tmp, Minv_ref, B, nb)
+            _cell_rate(acc, u, r, g0, g1, tmp, I, dofs, R, S0, S1, Jinv, invdet, Minv_ref, B, c, nb, contig)
             _load(u, x, dofs, c, nb, contig)
             for j in range(nb):
                 for k in range(5):
