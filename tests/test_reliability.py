@@ -82,6 +82,7 @@ def _kill_after_checkpoint(cmd, ckpt: Path, ranks=2, timeout=300):
     ("crossing.py", "crossing", ["--friction", "0.3"]),   # an arrest, then a crossing after the restart
     ("branching.py", "branching", []),                    # a branch after the restart
     ("refracture.py", "refracture", ["--growth", "--growth-nucleation-cap", "2", "--t-end", "2.5e-4"]),  # microcracks
+    ("borehole.py", "borehole", ["--scheme", "ader", "--t-end", "1e-2"]),  # ADER: its predictor from the restored state
 ])
 def test_kill_and_restart_on_two_ranks_ends_as_a_straight_run(tmp_path, script, name, extra):
     """Checkpoints every second (on rank 0's clock, broadcast: a per-rank decision hung here
