@@ -184,31 +184,65 @@ def _kernels(nb, nk, contig=False):
         r = np.empty((nb, 5))
         tmp = np.empty((nb, 5))
         for c in range(ncells):
-            _cell_rate(u, u, r, g0, g1, tmp, X, dofs, R, S0, S1, Jinv, invdet, Minv_ref, Btab[mat[c]], c, nb, contig)
-            _store(out, u, dofs, c, nb, contig)
-
-    @njit
-    def ader_predictor(I, X, dofs, ncells, D0, D1, Jinv, mat, Btab, dt, order):
-        """I[cell dofs] = sum_{k=0..order} dt^(k+1)/(k+1)! D^k x on each owned cell, D the
-        cell-local strong-form operator (the volume terms and the inverse mass, no facet
-        flux; ``D_r = Minv_ref S_r``, the nodal derivative matrices): the time integral over
-        one step of the cell's Taylor predictor, in one pass."""
-        u = np.empty((nb, 5))
-        g0 = np.empty((nb, 5))
-        g1 = np.empty((nb, 5))
-        r = np.empty((nb, 5))
-        acc = np.empty((nb, 5))
-        for c in range(ncells):
-            _load(u, X, dofs, c, nb, contig)
-            _taylor_integral(acc, u, r, g0, g1, D0, D1, Jinv, c, Btab[mat[c]], dt, order, nb)
-            _store(I, acc, dofs, c, nb, contig)
+            for j in range(nb):
+                base = 5 * (nb * c + j) if contig else 5 * dofs[c, j]
+                for k in range(5):
+                    u[j, k] = X[base + k]
+            for i in range(nb):
+                for k in range(5):
+                    s0 = 0.0
+                    s1 = 0.0
+                    for j in range(nb):
+                        s0 += S0[i, j] * u[j, k]
+                        s1 += S1[i, j] * u[j, k]
+                    g0[i, k] = s0
+                    g1[i, k] = s1
+            j00, j01, j10, j11 = Jinv[c, 0, 0], Jinv[c, 0, 1], Jinv[c, 1, 0], Jinv[c, 1, 1]
+            e = invdet[c]  # (R + |det J| vol) / |det J|
+            for i in range(nb):
+                # d/dx = Jinv[0,0] d/dX0 + Jinv[1,0] d/dX1 ; d/dy = Jinv[0,1] d/dX0 + Jinv[1,1] d/dX1
+                dx_vx = j00 * g0[i, 0] + j10 * g1[i, 0]
+                dy_vx = j01 * g0[i, 0] + j11 * g1[i, 0]
+                dx_vy = j00 * g0[i, 1] + j10 * g1[i, 1]
+                dy_vy = j01 * g0[i, 1] + j11 * g1[i, 1]
+                dx_sxx = j00 * g0[i, 2] + j10 * g1[i, 2]
+                dy_syy = j01 * g0[i, 3] + j11 * g1[i, 3]
+                dx_sxy = j00 * g0[i, 4] + j10 * g1[i, 4]
+                dy_sxy = j01 * g0[i, 4] + j11 * g1[i, 4]
+                r[i, 0] = e * R[c, i, 0] + (dx_sxx + dy_sxy)
+                r[i, 1] = e * R[c, i, 1] + (dx_sxy + dy_syy)
+                r[i, 2] = e * R[c, i, 2] + dx_vx
+                r[i, 3] = e * R[c, i, 3] + dy_vy
+                r[i, 4] = e * R[c, i, 4] + (dy_vx + dx_vy)
+                for k in range(5):
+                    R[c, i, k] = 0.0  # cleared for the next stage (saves a separate pass)
+            for a in range(nb):
+                for k in range(5):
+                    acc = 0.0
+                    for b in range(nb):
+                        acc += Minv_ref[a, b] * r[b, k]
+                    tmp[a, k] = acc
+            B = Btab[mat[c]]
+            b00, b11 = B[0], B[1]
+            c22, c23, c24, c32, c33, c34 = B[2], B[3], B[4], B[5], B[6], B[7]
+            c42, c43, c44 = B[8], B[9], B[10]
+            for a in range(nb):
+                base = 5 * (nb * c + a) if contig else 5 * dofs[c, a]
+                t2, t3, t4 = tmp[a, 2], tmp[a, 3], tmp[a, 4]
+                out[base] = b00 * tmp[a, 0]
+                out[base + 1] = b11 * tmp[a, 1]
+                out[base + 2] = c22 * t2 + c23 * t3 + c24 * t4
+                out[base + 3] = c32 * t2 + c33 * t3 + c34 * t4
+                out[base + 4] = c42 * t2 + c43 * t3 + c44 * t4
 
     @njit
     def ader_corrector(x, I, R, dofs, ncells, S0, S1, Jinv, invdet, Minv_ref, mat, Btab, D0, D1, dt, order):
         """Per owned cell: x += M_c^{-1} (R[c] + volume terms of I) (ADER's corrector, R[c]
         holding the facet fluxes of I; R[c] is zeroed), then I = the predictor's time integral
-        from the new x (:func:`ader_predictor`) for the next step: one pass for what would be
-        the volume kernel, the update and the next predictor."""
+        from the new x, sum_{k=0..order} dt^(k+1)/(k+1)! D^k x with D the cell-local
+        strong-form operator (the volume terms and the inverse mass, no facet flux;
+        ``D_r = Minv_ref S_r``, the nodal derivative matrices), for the next step: one pass
+        for what would be the volume kernel, the update and the next predictor."""
         u = np.empty((nb, 5))
         g0 = np.empty((nb, 5))
         g1 = np.empty((nb, 5))
@@ -412,7 +446,7 @@ def _kernels(nb, nk, contig=False):
         return 0.5 * kin, 0.5 * strain
 
     return (volume_and_inverse, facet_fluxes, facet_dissipation, cell_energies, boundary_fluxes, boundary_energy,
-            ader_predictor, ader_corrector)
+            ader_corrector)
 
 
 @functools.lru_cache(maxsize=None)
@@ -603,7 +637,7 @@ class MatrixFreeOperator:
         self.tables = tables
         self.fnodes, self.Mf = facet_nodes(ref, tables, self.qw)
         (self._volume, self._facets, self._dissipation, self._energies, self._boundary,
-         self._boundary_energy, self._predictor, self._corrector) = _kernels(nb, self.fnodes.shape[1], self.contiguous)
+         self._boundary_energy, self._corrector) = _kernels(nb, self.fnodes.shape[1], self.contiguous)
         c_off, c_arr = compat.connectivity(mesh, tdim - 1, tdim)
         facets = np.asarray(facets, dtype=np.int64)
         # facets of the outer ghost layer see one cell here: a ghost, so nothing to add
@@ -717,9 +751,12 @@ class MatrixFreeOperator:
     def ader_predictor(self, x, I, dt, order):
         """I = sum_{k=0..order} dt^(k+1)/(k+1)! D^k x (:meth:`local_derivative`), the time
         integral of the cell-local Taylor predictor over [t, t + dt] (ADER's
-        Cauchy-Kovalevskaya step), in one compiled pass; ``x``, ``I``: owned values."""
-        self._predictor(I, x, self.dofs, self.nowned, *self._derivatives(), self.Jinv, self.mat, self.Btab, float(dt),
-                        int(order))
+        Cauchy-Kovalevskaya step); ``x``, ``I``: owned values.  The corrector's kernel with no
+        flux and I = 0 (x += 0 leaves it bit for bit): one kernel to compile, not two."""
+        I[:] = 0.0
+        if not self._R_clear:
+            self.R[:] = 0.0
+        self.ader_correct(x, I, dt, order)
 
     def ader_correct(self, x, I, dt, order):
         """x += M^{-1}(R + volume terms of I), ``R`` holding the facet fluxes of I from

@@ -734,7 +734,7 @@ class Solver:
         mf, dt, x = self.matfree, self.dt, self.x
         I, _ = self._work
         if self._ader_next != (x.stateGet(), dt):
-            mf.ader_predictor(x.array_r, I.array, dt, self.degree)
+            mf.ader_predictor(x.array, I.array, dt, self.degree)
         mf.integrate_boundary_data(self.t, dt, (self.degree + 2) // 2)
         if self.comm.size > 1:
             I.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
