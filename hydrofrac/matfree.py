@@ -70,10 +70,11 @@ def _load(u, X, dofs, c, nb, contig):
 
 
 @njit_inline
-def _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb):
+def _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb, rows):
     """r = the strong-form volume terms of cell c's polynomial u, per reference basis
-    function: (div sigma, grad v) in the velocity-stress layout, tested on phi_i."""
-    for i in range(nb):
+    function: (div sigma, grad v) in the velocity-stress layout, tested on phi_i.  ``rows``:
+    1 where the rows of S_r are equal (P1, :func:`_kernels`): row 0 is computed and copied."""
+    for i in range(rows):
         for k in range(5):
             s0 = 0.0
             s1 = 0.0
@@ -83,7 +84,7 @@ def _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb):
             g0[i, k] = s0
             g1[i, k] = s1
     j00, j01, j10, j11 = Jinv[c, 0, 0], Jinv[c, 0, 1], Jinv[c, 1, 0], Jinv[c, 1, 1]
-    for i in range(nb):
+    for i in range(rows):
         # d/dx = Jinv[0,0] d/dX0 + Jinv[1,0] d/dX1 ; d/dy = Jinv[0,1] d/dX0 + Jinv[1,1] d/dX1
         dx_vx = j00 * g0[i, 0] + j10 * g1[i, 0]
         dy_vx = j01 * g0[i, 0] + j11 * g1[i, 0]
@@ -98,6 +99,9 @@ def _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb):
         r[i, 2] = dx_vx
         r[i, 3] = dy_vy
         r[i, 4] = dy_vx + dx_vy
+    for i in range(rows, nb):
+        for k in range(5):
+            r[i, k] = r[0, k]
 
 
 @njit_inline
@@ -136,14 +140,14 @@ def _store(out, w, dofs, c, nb, contig):
 
 
 @njit_inline
-def _taylor_integral(acc, u, r, g0, g1, D0, D1, Jinv, c, B, dt, order, nb):
+def _taylor_integral(acc, u, r, g0, g1, D0, D1, Jinv, c, B, dt, order, nb, rows):
     """acc = sum_{k=0..order} dt^(k+1)/(k+1)! D^k u for cell c (u is overwritten)."""
     for j in range(nb):
         for k in range(5):
             acc[j, k] = dt * u[j, k]
     coef = dt
     for m in range(1, order + 1):
-        _strong_volume(r, u, g0, g1, D0, D1, Jinv, c, nb)
+        _strong_volume(r, u, g0, g1, D0, D1, Jinv, c, nb, rows)
         _material(u, r, B, nb)
         coef *= dt / (m + 1)
         for j in range(nb):
@@ -152,11 +156,11 @@ def _taylor_integral(acc, u, r, g0, g1, D0, D1, Jinv, c, B, dt, order, nb):
 
 
 @njit_inline
-def _cell_rate(w, u, r, g0, g1, tmp, X, dofs, R, S0, S1, Jinv, invdet, Minv_ref, B, c, nb, contig):
+def _cell_rate(w, u, r, g0, g1, tmp, X, dofs, R, S0, S1, Jinv, invdet, Minv_ref, B, c, nb, rows, contig):
     """w = M_c^{-1} (R[c] + volume terms of X on cell c), and R[c] zeroed (cleared for the
     next stage: that saves a separate pass); ``u``, ``r``, ``g0``, ``g1``, ``tmp``: scratch."""
     _load(u, X, dofs, c, nb, contig)
-    _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb)
+    _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb, rows)
     e = invdet[c]  # (R + |det J| vol) / |det J|
     for i in range(nb):
         for k in range(5):
@@ -170,7 +174,10 @@ def _kernels(nb, nk, contig=False):
     """The (volume + inverse mass, interior facet flux, facet dissipation, cell energies)
     kernels for ``nb`` basis functions per cell and ``nk`` on a facet, compiled with both as
     constants: LLVM then unrolls the small loops (2-3x faster than with run-time sizes at
-    p = 1-3; numba caches each set)."""
+    p = 1-3; numba caches each set).  At P1 (nb = 3) the gradients of the basis are
+    constant, so the rows of S_r = int phi_i d_r phi_j (and of D_r = M^-1 S_r) are equal:
+    the kernels compute one row (``rows`` = 1; checked in :class:`MatrixFreeOperator`)."""
+    rows = 1 if nb == 3 else nb
 
     @njit
     def volume_and_inverse(out, R, X, dofs, ncells, S0, S1, Jinv, invdet, Minv_ref, mat, Btab):
@@ -187,12 +194,13 @@ def _kernels(nb, nk, contig=False):
         g1 = np.empty((nb, 5))
         r = np.empty((nb, 5))
         tmp = np.empty((nb, 5))
+        vol = np.empty((rows, 5))
         for c in range(ncells):
             for j in range(nb):
                 base = 5 * (nb * c + j) if contig else 5 * dofs[c, j]
                 for k in range(5):
                     u[j, k] = X[base + k]
-            for i in range(nb):
+            for i in range(rows):
                 for k in range(5):
                     s0 = 0.0
                     s1 = 0.0
@@ -202,8 +210,7 @@ def _kernels(nb, nk, contig=False):
                     g0[i, k] = s0
                     g1[i, k] = s1
             j00, j01, j10, j11 = Jinv[c, 0, 0], Jinv[c, 0, 1], Jinv[c, 1, 0], Jinv[c, 1, 1]
-            e = invdet[c]  # (R + |det J| vol) / |det J|
-            for i in range(nb):
+            for i in range(rows):
                 # d/dx = Jinv[0,0] d/dX0 + Jinv[1,0] d/dX1 ; d/dy = Jinv[0,1] d/dX0 + Jinv[1,1] d/dX1
                 dx_vx = j00 * g0[i, 0] + j10 * g1[i, 0]
                 dy_vx = j01 * g0[i, 0] + j11 * g1[i, 0]
@@ -213,12 +220,16 @@ def _kernels(nb, nk, contig=False):
                 dy_syy = j01 * g0[i, 3] + j11 * g1[i, 3]
                 dx_sxy = j00 * g0[i, 4] + j10 * g1[i, 4]
                 dy_sxy = j01 * g0[i, 4] + j11 * g1[i, 4]
-                r[i, 0] = e * R[c, i, 0] + (dx_sxx + dy_sxy)
-                r[i, 1] = e * R[c, i, 1] + (dx_sxy + dy_syy)
-                r[i, 2] = e * R[c, i, 2] + dx_vx
-                r[i, 3] = e * R[c, i, 3] + dy_vy
-                r[i, 4] = e * R[c, i, 4] + (dy_vx + dx_vy)
+                vol[i, 0] = dx_sxx + dy_sxy
+                vol[i, 1] = dx_sxy + dy_syy
+                vol[i, 2] = dx_vx
+                vol[i, 3] = dy_vy
+                vol[i, 4] = dy_vx + dx_vy
+            e = invdet[c]  # (R + |det J| vol) / |det J|
+            for i in range(nb):
+                iv = i if rows == nb else 0
                 for k in range(5):
+                    r[i, k] = e * R[c, i, k] + vol[iv, k]
                     R[c, i, k] = 0.0  # cleared for the next stage (saves a separate pass)
             for a in range(nb):
                 for k in range(5):
@@ -255,13 +266,13 @@ def _kernels(nb, nk, contig=False):
         acc = np.empty((nb, 5))
         for c in range(ncells):
             B = Btab[mat[c]]
-            _cell_rate(acc, u, r, g0, g1, tmp, I, dofs, R, S0, S1, Jinv, invdet, Minv_ref, B, c, nb, contig)
+            _cell_rate(acc, u, r, g0, g1, tmp, I, dofs, R, S0, S1, Jinv, invdet, Minv_ref, B, c, nb, rows, contig)
             _load(u, x, dofs, c, nb, contig)
             for j in range(nb):
                 for k in range(5):
                     u[j, k] += acc[j, k]
             _store(x, u, dofs, c, nb, contig)
-            _taylor_integral(acc, u, r, g0, g1, D0, D1, Jinv, c, B, dt, order, nb)
+            _taylor_integral(acc, u, r, g0, g1, D0, D1, Jinv, c, B, dt, order, nb, rows)
             _store(I, acc, dofs, c, nb, contig)
 
     @njit
@@ -607,6 +618,11 @@ class MatrixFreeOperator:
         dphi = ref.tabulate_grad(Xq)
         self.S0 = np.ascontiguousarray(np.einsum("q,qi,qj->ij", wq, phi, dphi[:, :, 0]))
         self.S1 = np.ascontiguousarray(np.einsum("q,qi,qj->ij", wq, phi, dphi[:, :, 1]))
+        if ref.nodes.shape[0] == 3:  # P1: the kernels use row 0 of S_r for every row (_kernels)
+            for S in (self.S0, self.S1):
+                if not np.allclose(S, S[0], rtol=0.0, atol=1e-14 * np.abs(S).max()):
+                    raise RuntimeError("P1 basis with non-constant gradients: the kernels' one-row volume "
+                                       "terms do not apply")
         self.Jinv = np.ascontiguousarray(g.Jinv)
         self.absdet = np.ascontiguousarray(np.abs(g.detJ))
         self.Minv_ref = solver.Mref_inv
