@@ -283,10 +283,12 @@ def tool_main(name: str, make) -> int:
 
 
 def write_csv(path, rows):
-    """Rows (dicts with the same keys) as CSV, floats with 6 significant digits: the
-    benchmark and study tables in ``postprocess/results``."""
+    """Rows (dicts) as CSV, floats with 6 significant digits: the benchmark and study tables
+    in ``postprocess/results``.  The columns are the rows' keys in order of first appearance;
+    a row without one leaves its cell empty."""
+    fields = list(dict.fromkeys(k for r in rows for k in r))
     with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w = csv.DictWriter(f, fieldnames=fields)
         w.writeheader()
         for r in rows:
             w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})

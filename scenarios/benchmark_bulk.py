@@ -142,8 +142,8 @@ def peak_flops(n=20_000_000, repeats=3):
 # Counted from the kernels' loops (a multiply-add = 2 flops), per owned cell with nb basis
 # functions and per facet with nk = p + 1 nodes:
 #
-# * volume: both reference derivatives 2·(2 nb² · 5), the inverse Jacobian's combinations
-#   nb · 16, adding the cell residual nb · 10, the reference inverse mass 2 nb² · 5, the
+# * volume: both reference derivatives 2·(2 rows·nb · 5), the inverse Jacobian's combinations
+#   rows · 16 (rows = nb, or 1 at P1, where the rows of S_r are equal: `matfree._kernels`), adding the cell residual nb · 10, the reference inverse mass 2 nb² · 5, the
 #   material block nb · 20;
 # * an interior facet: per node the jumps and their rotation (28), two bonded solutions (16),
 #   the rotation back for both sides (32); per side the facet mass matrix 2 nk² · 5;
@@ -157,29 +157,65 @@ def flops_per_dof_stage(solver: Solver):
     if mf is None:
         return None
     nb, nk = mf.dofs.shape[1], mf.fnodes.shape[1]
-    cell = 2 * (2 * nb * nb * 5) + nb * 16 + nb * 10 + 2 * nb * nb * 5 + nb * 20
+    rows = 1 if nb == 3 else nb
+    cell = 2 * (2 * rows * nb * 5) + rows * 16 + nb * 10 + 2 * nb * nb * 5 + nb * 20
     facet = nk * (28 + 16 + 32) + 2 * (2 * nk * nk * 5)
     bfacet = nk * (12 + 8 + 16) + 2 * nk * nk * 5
     total = mf.nowned * cell + mf.fcells.shape[0] * facet + mf.bcells.shape[0] * bfacet
     return solver.comm.allreduce(total, op=MPI.SUM) / solver.num_dofs + 4.0
 
 
+# ## Flop and byte model of one ADER step (per DOF), matrix-free
+#
+# One compiled pass per step over the cells (corrector and next predictor,
+# `matfree.ader_corrector`) plus the interior and boundary facet fluxes of the predictor's
+# integral I, counted as above:
+#
+# * per cell: the corrector's volume terms, residual and inverse mass (the volume line above),
+#   x += that (nb · 5), then the predictor: dt x (nb · 5) and p times the local derivative
+#   (the reference derivatives and inverse-Jacobian combinations as above, the material block
+#   nb · 20) with its Taylor term (2 nb · 5);
+# * the facets: as in a stage.
+#
+# Bytes per DOF: the facets read I (8) and accumulate into the cell residual (read and write,
+# 16); the pass reads I and the residual (16), clears the residual (8), reads and writes x
+# (16) and writes the new I (8); plus the same per-cell and per-facet data as a stage.
+
+def ader_model(solver: Solver):
+    """(flops, bytes) per DOF·step of the matrix-free ADER step (the model above)."""
+    mf = solver.matfree
+    nb, nk, p = mf.dofs.shape[1], mf.fnodes.shape[1], solver.degree
+    rows = 1 if nb == 3 else nb
+    derivative = 2 * (2 * rows * nb * 5) + rows * 16
+    cell = (derivative + nb * 10 + 2 * nb * nb * 5 + nb * 20 + nb * 5 + nb * 5
+            + p * (derivative + nb * 20 + 2 * nb * 5))
+    facet = nk * (28 + 16 + 32) + 2 * (2 * nk * nk * 5)
+    bfacet = nk * (12 + 8 + 16) + 2 * nk * nk * 5
+    flops = mf.nowned * cell + mf.fcells.shape[0] * facet + mf.bcells.shape[0] * bfacet
+    flops = solver.comm.allreduce(flops, op=MPI.SUM) / solver.num_dofs
+    return flops, matfree_data_bytes(solver) + 72
+
+
 # ## Byte model
+
+def matfree_data_bytes(solver: Solver):
+    """Bytes per DOF of the matrix-free kernels' per-cell and per-facet data: the inverse
+    Jacobian, 1/|det J|, the material index (and the dofmap, unless the DG numbering is cell by
+    cell, as DOLFINx makes it); per facet: cells, codes, normal, length, the two cells' impedances."""
+    mf = solver.matfree
+    cell_data = [mf.Jinv[:mf.nowned], mf.invdet[:mf.nowned], mf.mat[:mf.nowned]]
+    if not mf.contiguous:
+        cell_data.append(mf.dofs[:mf.nowned])
+    data = sum(a.nbytes for a in cell_data + [mf.fcells, mf.fcodes, mf.normal, mf.length])
+    data += 2 * 2 * 8 * mf.fcells.shape[0]  # Zd, Zs of both cells
+    return solver.comm.allreduce(data, op=MPI.SUM) / solver.num_dofs
+
 
 def bytes_per_dof_stage(solver: Solver):
     """(operator bytes, RK vector bytes) per DOF·stage, as documented above."""
     n = solver.num_dofs
     if solver.matfree is not None:
-        mf = solver.matfree
-        # per cell: the inverse Jacobian, 1/|det J|, the material index (and the dofmap, unless the
-        # DG numbering is cell by cell, as DOLFINx makes it); per facet: cells, codes, normal, length,
-        # the two cells' impedances
-        cell_data = [mf.Jinv[:mf.nowned], mf.invdet[:mf.nowned], mf.mat[:mf.nowned]]
-        if not mf.contiguous:
-            cell_data.append(mf.dofs[:mf.nowned])
-        data = sum(a.nbytes for a in cell_data + [mf.fcells, mf.fcodes, mf.normal, mf.length])
-        data += 2 * 2 * 8 * mf.fcells.shape[0]  # Zd, Zs of both cells
-        operator = solver.comm.allreduce(data, op=MPI.SUM) / n + 16 + 32
+        operator = matfree_data_bytes(solver) + 16 + 32
     else:
         info = solver.A.getInfo(info=solver.A.InfoType.GLOBAL_SUM)
         nnz = info["nz_used"]
@@ -229,13 +265,21 @@ def throughput_case(comm, p, N, bandwidth, operator, mesh, peak=None, scheme="rk
     mults = max(3, steps * s)
     wall_mult = timed(comm, lambda: solver.rhs(x, 0.0, y), mults)
     rate = n * s * steps / wall
-    if scheme == "ader":  # (no byte or flop model: its step is one fused pass, see docs/benchmarks.md)
+    if scheme == "ader":  # (its own flop and byte model per step: ader_model)
         for v in (x, y):
             v.destroy()
-        return {"operator": f"{operator} ader", "p": p, "N": N, "cells": solver.num_cells, "dofs": n,
-                "ranks": comm.size, "setup_s": setup, "steps": steps, "stages": s, "wall_s": wall,
-                "dof_stages_per_s": rate, "dof_stages_per_s_per_rank": rate / comm.size,
-                "unknown_steps_per_s_per_rank": n * steps / wall / comm.size}
+        flops, nbytes = ader_model(solver)
+        per_step = n * steps / wall
+        row = {"operator": f"{operator} ader", "p": p, "N": N, "cells": solver.num_cells, "dofs": n,
+               "ranks": comm.size, "setup_s": setup, "steps": steps, "stages": s, "wall_s": wall,
+               "dof_stages_per_s": rate, "dof_stages_per_s_per_rank": rate / comm.size,
+               "unknown_steps_per_s_per_rank": per_step / comm.size,
+               "bytes_per_dof_step": nbytes, "bandwidth_GBs": bandwidth / 1e9,
+               "fraction_of_bound": per_step * nbytes / bandwidth, "flops_per_dof_step": flops}
+        if peak:
+            row.update({"peak_GFlops_per_core": peak / 1e9,
+                        "fraction_of_peak_flops": per_step / comm.size * flops / peak})
+        return row
     op_bytes, rk_bytes = bytes_per_dof_stage(solver)
     row = {
         "operator": operator, "p": p, "N": N, "cells": solver.num_cells, "dofs": n, "ranks": comm.size, "setup_s": setup,
@@ -371,12 +415,14 @@ def main(argv=None):
                           + (f"; {r['flops_per_dof_stage']:.0f} flop/DOF*stage, {r['fraction_of_peak_flops']:.3f} "
                              "of the peak" if "flops_per_dof_stage" in r else ""))
             log(comm, f"[bench]           matrix-free / assembled step rate: {pair['matfree'] / pair['assembled']:.2f}")
-            r = throughput_case(comm, p, N, bandwidth, "matfree", mesh, scheme="ader")
+            r = throughput_case(comm, p, N, bandwidth, "matfree", mesh, peak, scheme="ader")
             rows.append(r)
             rk4 = next(q for q in rows if q["operator"] == "matfree" and q["p"] == p and q["N"] == N)
             log(comm, f"[bench] ADER      p={p} N={N:4d}: {r['unknown_steps_per_s_per_rank']:.3g} unknown*steps/s per "
                       f"rank, {r['unknown_steps_per_s_per_rank'] / rk4['unknown_steps_per_s_per_rank']:.2f}x rk4's; "
-                      f"its step is {default_cfl('ader', p) / default_cfl('rk4', p):.2f}x as long")
+                      f"its step is {default_cfl('ader', p) / default_cfl('rk4', p):.2f}x as long; "
+                      f"{r['fraction_of_bound']:.2f} of the bound at {r['bytes_per_dof_step']:.0f} B, "
+                      f"{r['flops_per_dof_step']:.0f} flop/DOF*step, {r['fraction_of_peak_flops']:.3f} of the peak")
     if comm.rank == 0:
         write_csv(out / f"bulk_throughput_n{comm.size}.csv", rows)
         print(rate_table(rows), flush=True)
