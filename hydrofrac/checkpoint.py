@@ -8,7 +8,9 @@ Every decision about a checkpoint is collective:
 * the loop decides *when* to save on rank 0's clock (or a step count) and broadcasts it;
 * before a restart every rank reads its whole file, and all ranks agree that every piece is
   readable and consistent before any rank uses it; a bad checkpoint is the same clear
-  :class:`CheckpointError` on every rank, naming the file and what to do.
+  :class:`CheckpointError` on every rank, naming the file and what to do;
+* a save that fails on any rank (a full disk, no write permission) is the same
+  :class:`CheckpointError` on every rank, and leaves the previous checkpoint in place.
 """
 from __future__ import annotations
 
@@ -81,9 +83,8 @@ class Checkpoint:
         save instead of the problem's current state (the last good state after a blow-up, the
         state before a shortened last step)."""
         solver = problem.solver
-        if self.comm.rank == 0:
-            self.dir.mkdir(parents=True, exist_ok=True)
-        self.comm.barrier()
+        mkdir = (lambda: self.dir.mkdir(parents=True, exist_ok=True)) if self.comm.rank == 0 else (lambda: None)
+        self._on_every_rank(mkdir, "create the folder")
         if snapshot is None:
             snapshot = (solver.x.array_r, solver.t, solver.step_count, solver.energy.__dict__,
                         solver.account.last_rates,
@@ -98,10 +99,29 @@ class Checkpoint:
             for k, v in e.items():
                 data[f"ext{i}_{k}"] = v
         tmp = self.dir / f".tmp_r{self.comm.rank}.npz"
-        np.savez(tmp, **data)
-        self.comm.barrier()  # every rank has its new file before any replaces its old one
-        tmp.replace(self.path())
-        self.comm.barrier()
+        # every rank has its new file before any replaces its old one; a rank that cannot write
+        # leaves every rank's previous checkpoint in place
+        self._on_every_rank(lambda: np.savez(tmp, **data), "write its file", cleanup=lambda: tmp.unlink(missing_ok=True))
+        self._on_every_rank(lambda: tmp.replace(self.path()), "replace its file",
+                            kept="the ranks' files may now be of different steps, which a restart refuses")
+
+    def _on_every_rank(self, action, what, cleanup=None, kept="the previous checkpoint, if any, is kept"):
+        """Run ``action`` on this rank and agree on the outcome (collective): if it failed on
+        any rank, every rank runs ``cleanup`` and raises the same :class:`CheckpointError`,
+        naming the ranks and their errors, so no rank waits in a later collective for one that
+        has stopped (a full disk, a folder without write permission)."""
+        try:
+            action()
+            err = None
+        except Exception as e:  # (reported on every rank below)
+            err = f"rank {self.comm.rank}: {type(e).__name__}: {e}"
+        errors = [e for e in self.comm.allgather(err) if e is not None]
+        if errors:
+            if cleanup is not None:
+                cleanup()
+            raise CheckpointError(f"checkpoint in {self.dir}: could not {what} ({'; '.join(errors)}). The run stops "
+                                  f"here with its output so far; {kept}. Free disk space or choose a writable "
+                                  "--out, then restart")
 
     # ------------------------------------------------------------------ read and validate
     def _read_own(self):
