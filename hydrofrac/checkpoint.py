@@ -21,6 +21,7 @@ from typing import Dict, Optional
 import numpy as np
 
 from . import compat
+from .io import failures
 
 REQUIRED = ("x", "t", "step", "ranks", "ndofs", "frames_done", "energy", "frames", "last_rates", "geometry",
             "mesh_check", "params", "monitors", "loop")
@@ -110,12 +111,7 @@ class Checkpoint:
         any rank, every rank runs ``cleanup`` and raises the same :class:`CheckpointError`,
         naming the ranks and their errors, so no rank waits in a later collective for one that
         has stopped (a full disk, a folder without write permission)."""
-        try:
-            action()
-            err = None
-        except Exception as e:  # (reported on every rank below)
-            err = f"rank {self.comm.rank}: {type(e).__name__}: {e}"
-        errors = [e for e in self.comm.allgather(err) if e is not None]
+        errors = failures(self.comm, action)
         if errors:
             if cleanup is not None:
                 cleanup()

@@ -5,7 +5,9 @@ hydrofrac writes its own files: every rank writes a binary ``.vtu`` piece, rank 
 a ``.pvtu`` per part and the ``.pvd`` collection, rewritten (atomically) after
 every frame so the series on disk is always complete.  A frame may hold several
 parts (the bulk DG fields and the crack-interface line mesh); ParaView shows
-them as the blocks of one multiblock time series.
+them as the blocks of one multiblock time series.  A frame that any rank cannot write
+is the same :class:`OutputError` on every rank (:func:`failures`), never a rank waiting
+for one that has stopped.
 """
 from __future__ import annotations
 
@@ -19,6 +21,22 @@ import numpy as np
 VTK_TRIANGLE = 5
 VTK_LINE = 3
 VTK_LAGRANGE_TRIANGLE = 69
+
+class OutputError(RuntimeError):
+    """Output that could not be written (a full disk, a folder without write permission)."""
+
+
+def failures(comm, action):
+    """Run ``action`` on this rank and return every rank's error (as "rank r: Type: message";
+    empty: it worked everywhere), on every rank: collective (one allgather), so that the
+    ranks decide together whether to go on."""
+    try:
+        action()
+        err = None
+    except Exception as e:  # (reported on every rank)
+        err = f"rank {comm.rank}: {type(e).__name__}: {e}"
+    return [e for e in comm.allgather(err) if e is not None]
+
 
 _TYPES = {np.dtype(np.float64): "Float64", np.dtype(np.float32): "Float32", np.dtype(np.int32): "Int32",
           np.dtype(np.int64): "Int64", np.dtype(np.uint8): "UInt8"}
@@ -127,36 +145,43 @@ class VTKSeries:
         return self.dir / f"{self.name}.pvd"
 
     def write(self, t: float, parts: Dict[str, Part]):
+        """Write frame ``t`` (collective; :class:`OutputError` on every rank if any rank
+        cannot write its piece, or rank 0 the collection)."""
         i = len(self.frames)
-        files = {}
-        for pname, part in parts.items():
-            base = f"{self.name}_{pname}_{i:05d}"
-            piece = f"{base}_r{self.comm.rank}.vtu"
-            write_vtu(self.dir / "vtk" / piece, part.points, part.cells, part.cell_type,
-                      part.point_data, part.cell_data)
-            if self.comm.rank == 0:
-                pieces = "".join(f'<Piece Source="{base}_r{r}.vtu"/>\n' for r in range(self.comm.size))
-                text = ('<?xml version="1.0"?>\n<VTKFile type="PUnstructuredGrid" version="1.0" '
-                        'byte_order="LittleEndian" header_type="UInt64">\n<PUnstructuredGrid GhostLevel="0">\n'
-                        '<PPoints><PDataArray type="Float64" NumberOfComponents="3"/></PPoints>\n'
-                        + _pdata("PPointData", part.point_data) + _pdata("PCellData", part.cell_data)
-                        + pieces + "</PUnstructuredGrid>\n</VTKFile>\n")
-                _atomic_write(self.dir / "vtk" / f"{base}.pvtu", text)
-            files[pname] = f"vtk/{base}.pvtu"
-        self.frames.append((t, files))
-        if self.comm.rank == 0:
-            self._write_pvd()
-        self.comm.barrier()
+        files = {pname: f"vtk/{self.name}_{pname}_{i:05d}.pvtu" for pname in parts}
 
-    def _write_pvd(self):
+        def write():
+            for pname, part in parts.items():
+                base = f"{self.name}_{pname}_{i:05d}"
+                piece = f"{base}_r{self.comm.rank}.vtu"
+                write_vtu(self.dir / "vtk" / piece, part.points, part.cells, part.cell_type,
+                          part.point_data, part.cell_data)
+                if self.comm.rank == 0:
+                    pieces = "".join(f'<Piece Source="{base}_r{r}.vtu"/>\n' for r in range(self.comm.size))
+                    text = ('<?xml version="1.0"?>\n<VTKFile type="PUnstructuredGrid" version="1.0" '
+                            'byte_order="LittleEndian" header_type="UInt64">\n<PUnstructuredGrid GhostLevel="0">\n'
+                            '<PPoints><PDataArray type="Float64" NumberOfComponents="3"/></PPoints>\n'
+                            + _pdata("PPointData", part.point_data) + _pdata("PCellData", part.cell_data)
+                            + pieces + "</PUnstructuredGrid>\n</VTKFile>\n")
+                    _atomic_write(self.dir / "vtk" / f"{base}.pvtu", text)
+            if self.comm.rank == 0:
+                self._write_pvd(self.frames + [(t, files)])
+
+        errors = failures(self.comm, write)
+        if errors:
+            raise OutputError(f"could not write frame {i} (t = {t:.6g} s) of {self.pvd_path}: {'; '.join(errors)}. "
+                              "The frames before it are complete; free disk space or choose a writable --out")
+        self.frames.append((t, files))
+
+    def _write_pvd(self, frames):
         names = []
-        for _, files in self.frames:
+        for _, files in frames:
             for p in files:
                 if p not in names:
                     names.append(p)
         lines = ['<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
                  "<Collection>\n"]
-        for t, files in self.frames:
+        for t, files in frames:
             for p, f in files.items():
                 lines.append(f'<DataSet timestep="{t:.9e}" group="" part="{names.index(p)}" name="{p}" file="{f}"/>\n')
         lines.append("</Collection>\n</VTKFile>\n")

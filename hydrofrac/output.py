@@ -13,6 +13,8 @@ import math
 from pathlib import Path
 from typing import Dict, Optional
 
+from .io import OutputError, failures
+
 
 class History:
     """``history.csv`` of a run (rank 0 writes; other ranks only compute the row)."""
@@ -32,15 +34,23 @@ class History:
             self._mode = "a" if keep else "w"
 
     def write(self, row: Dict):
-        if self.comm.rank != 0:
-            return
-        if self._writer is None:
-            self._file = open(self.path, self._mode, newline="")
-            self._writer = csv.DictWriter(self._file, fieldnames=list(row))
-            if self._mode == "w":
-                self._writer.writeheader()
-        self._writer.writerow(row)
-        self._file.flush()
+        """Append ``row`` (collective: an :class:`~hydrofrac.io.OutputError` on every rank if
+        rank 0 cannot write it)."""
+        def write():
+            if self.comm.rank != 0:
+                return
+            if self._writer is None:
+                self._file = open(self.path, self._mode, newline="")
+                self._writer = csv.DictWriter(self._file, fieldnames=list(row))
+                if self._mode == "w":
+                    self._writer.writeheader()
+            self._writer.writerow(row)
+            self._file.flush()
+
+        errors = failures(self.comm, write)
+        if errors:
+            raise OutputError(f"could not write {self.path}: {'; '.join(errors)}. Free disk space or choose a "
+                              "writable --out")
 
     def close(self):
         if self._file is not None:

@@ -159,44 +159,57 @@ def test_damaged_checkpoint_is_a_clear_error_on_every_rank(tmp_path, damage):
     assert "BadZipFile" not in text.replace("(BadZipFile", "") or "cannot be read" in text
 
 
-_FAILING_SAVE = """
-import runpy, sys
-import numpy as np
+_FAILING_WRITE = """
+import importlib, runpy, sys
 from mpi4py import MPI
-real, calls = np.savez, [0]
-def savez(*args, **kw):  # rank 1's disk fills up at its second checkpoint
+# argv: module:attribute (the writer to break), the rank it fails on, from its n-th call, script, args
+target, rank, nth = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+module, _, path = target.partition(":")
+owner = importlib.import_module(module)
+*parents, name = path.split(".")
+for p in parents:
+    owner = getattr(owner, p)
+real, calls = getattr(owner, name), [0]
+def failing(*args, **kw):  # that rank's disk fills up
     calls[0] += 1
-    if MPI.COMM_WORLD.rank == 1 and calls[0] >= 2:
+    if MPI.COMM_WORLD.rank == rank and calls[0] >= nth:
         raise OSError(28, "No space left on device")
     return real(*args, **kw)
-np.savez = savez
-sys.argv = [sys.argv[1], *sys.argv[2:]]
+setattr(owner, name, failing)
+sys.argv = sys.argv[4:]
 runpy.run_path(sys.argv[0], run_name="__main__")
 """
 
 
-def test_checkpoint_that_fails_on_one_rank_stops_every_rank(tmp_path):
-    """Rank 1 cannot write its checkpoint file (disk full): both ranks stop with the same
-    error naming rank 1 and its cause, instead of rank 0 waiting forever in the save's next
-    collective; the previous checkpoint stays whole (both files of one step, no temporaries)
-    and the output so far is kept."""
+@pytest.mark.parametrize("target, rank, nth, error", [
+    ("numpy:savez", 1, 2, "CheckpointError"),  # rank 1's second checkpoint
+    ("hydrofrac.io:write_vtu", 1, 5, "OutputError"),  # rank 1's third frame (two parts a frame)
+    ("csv:DictWriter.writerow", 0, 4, "OutputError"),  # rank 0's fourth history row
+])
+def test_output_that_fails_on_one_rank_stops_every_rank(tmp_path, target, rank, nth, error):
+    """One rank cannot write its checkpoint file, frame piece or history row (disk full): both
+    ranks stop with the same error naming that rank and its cause, instead of the other one
+    waiting forever in the next collective.  A failed checkpoint keeps the previous one whole
+    (both files of one step, no temporaries); the output so far is kept."""
     out = tmp_path / "run"
-    script = tmp_path / "failing_save.py"
-    script.write_text(_FAILING_SAVE)
-    res = _run([*_mpi(2), script, SC / "two_bars.py", "--quick", "--frames", "4", "--t-end", "1e-4",
-                "--checkpoint-steps", "5", "--out", out], check=False, timeout=180)
+    script = tmp_path / "failing_write.py"
+    script.write_text(_FAILING_WRITE)
+    res = _run([*_mpi(2), script, target, rank, nth, SC / "two_bars.py", "--quick", "--frames", "4",
+                "--t-end", "1e-4", "--checkpoint-steps", "5", "--out", out],
+               check=False, timeout=180)
     text = res.stdout + res.stderr
     assert res.returncode != 0
-    assert text.count("CheckpointError") >= 2, text[-3000:]  # raised on both ranks
-    assert "rank 1: OSError" in text and "No space left on device" in text and "writable --out" in text
-    ckpt = out / "checkpoint"
-    steps = []
-    for r in (0, 1):
-        with np.load(ckpt / f"state_r{r}.npz") as d:
-            steps.append(int(d["step"]))
-    assert steps[0] == steps[1] == 5, steps
-    assert not list(ckpt.glob(".tmp_r*")), "a temporary file was left behind"
-    assert (out / "history.csv").read_text().count("\n") > 5
+    assert text.count(error) >= 2, text[-3000:]  # raised on both ranks
+    assert f"rank {rank}: OSError" in text and "No space left on device" in text and "writable --out" in text
+    assert (out / "history.csv").read_text().count("\n") >= 2
+    if error == "CheckpointError":
+        ckpt = out / "checkpoint"
+        steps = []
+        for r in (0, 1):
+            with np.load(ckpt / f"state_r{r}.npz") as d:
+                steps.append(int(d["step"]))
+        assert steps[0] == steps[1] == 5, steps
+        assert not list(ckpt.glob(".tmp_r*")), "a temporary file was left behind"
 
 
 @pytest.mark.parametrize("args, word", [
