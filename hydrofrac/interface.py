@@ -354,10 +354,8 @@ class Interface:
         z = np.zeros((3, 0, self.nq))
         Rc = np.zeros((0, self._nb, 5))
         empty = kernels.Facets(self._P[:0], self._I[:0], self.nq, self._nb)
-        kernels.interface_stage(X, Rc, np.zeros(5), 0, np.zeros((4, 0, self.nq)), empty,
-                                kernels.State(z[0], z[1]),
-                                kernels.Separation(np.zeros((0, self.nq, 2)), np.zeros((0, self.nq)), 1.0),
-                                self._laws)
+        kernels.interface_stage_flat(X, Rc, np.zeros(5), 0, np.zeros((4, 0, self.nq)), *empty, z[0], z[1],
+                                     np.zeros((0, self.nq, 2)), np.zeros((0, self.nq)), 1.0, *self._laws)
         if self._ghost_flux or self.solver.matfree is None:
             kernels.apply_block_inverse(np.zeros(5), np.zeros(5), self._recv_cells[:0], self._all_dofs,
                                         self.solver.Mref_inv, self.solver.Binv_scaled)
@@ -423,9 +421,8 @@ class Interface:
         """
         T = self._buffers() if T is None else T
         D = np.ascontiguousarray(z[0])
-        kernels.interface_targets(xloc, self._facets, kernels.State(D, np.ascontiguousarray(z[1])),
-                                  kernels.Separation(*self._separation(t)), self._laws,
-                                  kernels.Targets(*(T[k] for k in kernels.Targets._fields)))
+        kernels.interface_targets_flat(xloc, *self._facets, D, np.ascontiguousarray(z[1]), *self._separation(t),
+                                       *self._laws, *(T[k] for k in kernels.Targets._fields))
         T.update(D=D.reshape(-1), Zp=self._Zq[0], Zm=self._Zq[1])
         return T
 
@@ -445,8 +442,8 @@ class Interface:
         z = self.stage_state
         rates = np.empty((4,) + z.shape[1:])  # (damage, opening, slip, free opening) rates
         with self._r.localForm() as rl:  # zero except between a stage and its finish
-            kernels.interface_stage(X, Rc, rl.array, nowned, rates, self._facets, kernels.State(z[0], z[1]),
-                                    kernels.Separation(*self._separation(t)), self._laws)
+            kernels.interface_stage_flat(X, Rc, rl.array, nowned, rates, *self._facets, z[0], z[1],
+                                         *self._separation(t), *self._laws)
         return rates
 
     def _finish(self, out, cells):
