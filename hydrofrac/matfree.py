@@ -584,14 +584,25 @@ IMPLEMENTED_FORMS = ("fields", "compliance", "impedances", "tangent", "volume", 
 IMPLEMENTED_SIGNATURE = "fa0130871ab7a680dd6ef464917180e160ccf9b44889c6826f89a50b0aeea611"
 
 
+_SIGNATURES: dict = {}
+
+
 def forms_signature() -> str:
-    """SHA-256 of the source of the forms in :data:`IMPLEMENTED_FORMS`, as they are now."""
+    """SHA-256 of the source of the forms in :data:`IMPLEMENTED_FORMS`, as they are now.  Read
+    once per (form function objects, forms file version): a remesh builds a new solver, and
+    reading the source costs ~5 ms; an edit of the file or a replaced function is a new key."""
     import hashlib
     import inspect
+    import os
 
     from .forms import elastodynamics as ef
-    text = "\n".join(inspect.getsource(getattr(ef, name)) for name in IMPLEMENTED_FORMS)
-    return hashlib.sha256(text.encode()).hexdigest()
+    fns = tuple(getattr(ef, name) for name in IMPLEMENTED_FORMS)
+    files = tuple(inspect.getsourcefile(f) for f in fns)
+    key = (tuple(map(id, fns)), tuple((f, os.stat(f).st_mtime_ns) for f in files))
+    if key not in _SIGNATURES:
+        text = "\n".join(inspect.getsource(f) for f in fns)
+        _SIGNATURES[key] = (fns, hashlib.sha256(text.encode()).hexdigest())  # (fns kept: ids stay theirs)
+    return _SIGNATURES[key][1]
 
 
 def implements_forms() -> bool:

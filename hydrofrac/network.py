@@ -68,12 +68,13 @@ class CrackNetwork:
         (radius ``wellbore_radius`` about the origin) are neither; the last end of a crack
         tagged in ``growing`` is an active tip unless it is a junction."""
         net = cls(list(cracks))
-        for c in net.cracks:
+        segs = net._segments()
+        for k, c in enumerate(net.cracks):
             for end in (0, -1):
                 p = c.points[end]
                 if wellbore_radius > 0 and abs(np.hypot(*p) - wellbore_radius) < tol:
                     continue
-                other = net._crack_at(p, c, end, tol)
+                other = net._crack_at(p, k, end, tol, segs)
                 if other is not None:
                     seen = any(np.linalg.norm(q - p) < tol and set(tags) == {c.tag, other} for q, tags in net.junctions)
                     if not seen:  # two crack ends that meet are one junction
@@ -87,21 +88,28 @@ class CrackNetwork:
                 net.tips.append(TipEnd(c.tag, end, p.copy(), d, active=active))
         return net
 
-    def _crack_at(self, p, me: CrackLine, end: int, tol: float):
-        """Tag of a crack whose polyline passes within ``tol`` of ``p`` (for ``me``, only its
-        segments short of the end itself), or None."""
-        for c in self.cracks:
-            pts = c.points
-            if c is me:
-                pts = pts[:-2] if end == -1 else pts[2:]
-                if len(pts) < 2:
-                    continue
-            a, b = pts[:-1], pts[1:]
-            e = b - a
-            u = np.clip(np.einsum("ij,ij->i", p - a, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0, 1)
-            if np.min(np.linalg.norm(a + u[:, None] * e - p, axis=1)) < tol:
-                return c.tag
-        return None
+    def _segments(self):
+        """(a, b, crack, index): every segment a-b of every crack, the crack's position in
+        :attr:`cracks` and the segment's index along it."""
+        a = np.concatenate([c.points[:-1] for c in self.cracks])
+        b = np.concatenate([c.points[1:] for c in self.cracks])
+        n = [len(c.points) - 1 for c in self.cracks]
+        crack = np.repeat(np.arange(len(n)), n)
+        return a, b, crack, np.arange(a.shape[0]) - np.repeat(np.cumsum(n) - n, n)
+
+    def _crack_at(self, p, me: int, end: int, tol: float, segs):
+        """Tag of the first crack whose polyline passes within ``tol`` of ``p`` (for crack
+        ``me``, only its segments short of the end itself: not its two segments at that end),
+        or None.  One pass over the segments of all cracks (:meth:`_segments`)."""
+        a, b, crack, index = segs
+        e = b - a
+        u = np.clip(np.einsum("ij,ij->i", p - a, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0, 1)
+        near = np.linalg.norm(a + u[:, None] * e - p, axis=1) < tol
+        n_me = len(self.cracks[me].points) - 1
+        own = crack == me
+        near &= ~own | ((index < n_me - 2) if end == -1 else (index >= 2))
+        hit = np.flatnonzero(near)
+        return self.cracks[crack[hit[0]]].tag if hit.size else None
 
     def counts(self) -> dict:
         """What a summary reports: cracks, junctions, tips and active tips."""

@@ -122,8 +122,13 @@ def _cross_table(a, b, tol=1e-9):
     point within ``tol`` [m] of the other segment's line (a crack that ends on another, or on
     itself, at a point rounded to 1 nm, e.g. a growth tip that joins it).  An overlap is a
     collinear stretch shared by both segments (see :func:`check_no_crossings`)."""
-    p, q = a[:-1, None, :], a[1:, None, :]
-    r, s_ = b[None, :-1, :], b[None, 1:, :]
+    return _cross_segments(a[:-1], a[1:], b[:-1], b[1:], tol)
+
+
+def _cross_segments(a0, a1, b0, b1, tol=1e-9):
+    """:func:`_cross_table` of the segments a0[i]-a1[i] against b0[j]-b1[j]."""
+    p, q = a0[:, None, :], a1[:, None, :]
+    r, s_ = b0[None, :, :], b1[None, :, :]
     cross = ((_orient_all(p, q, r, tol) * _orient_all(p, q, s_, tol) < 0)
              & (_orient_all(r, s_, p, tol) * _orient_all(r, s_, q, tol) < 0))
     d, e = q - p, s_ - r
@@ -179,14 +184,22 @@ def check_no_crossings(lines):
     """Raise ValueError (naming both) if two crack lines cross or overlap: a crack may end
     on another (a junction), but Gmsh would split a crossed line and lose its tag."""
     items = [(t, np.asarray(pts, dtype=float)) for t, pts in lines.items()]
-    for i, (ta, a) in enumerate(items):
-        for tb, b in items[i + 1:]:
-            cross, overlap = _cross_table(a, b)
-            bad = np.flatnonzero((overlap | cross).ravel())
-            if bad.size:  # (named by the first bad pair of segments)
-                raise ValueError(f"{_line_name(ta)} and {_line_name(tb)} "
-                                 f"{'overlap' if overlap.ravel()[bad[0]] else 'cross'}; move one of them (cracks may "
-                                 "end on each other, not cross)")
+    if len(items) < 2:
+        return
+    # every segment against every segment in one table (the pairs' arithmetic is the one of a
+    # table per pair of lines); the pairs of different lines, in the order of the lines
+    a0 = np.concatenate([a[:-1] for _, a in items])
+    a1 = np.concatenate([a[1:] for _, a in items])
+    line = np.repeat(np.arange(len(items)), [len(a) - 1 for _, a in items])
+    cross, overlap = _cross_segments(a0, a1, a0, a1)
+    bad = (cross | overlap) & (line[:, None] < line[None, :])
+    i, j = np.nonzero(bad)
+    if i.size:  # named by the first pair of lines, and its first bad pair of segments
+        k = np.lexsort((j, i, line[j], line[i]))[0]
+        (ta, _), (tb, _) = items[line[i[k]]], items[line[j[k]]]
+        raise ValueError(f"{_line_name(ta)} and {_line_name(tb)} "
+                         f"{'overlap' if overlap[i[k], j[k]] else 'cross'}; move one of them (cracks may "
+                         "end on each other, not cross)")
 
 
 def check_domain(d: Domain):
