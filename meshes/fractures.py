@@ -186,20 +186,22 @@ def check_no_crossings(lines):
     items = [(t, np.asarray(pts, dtype=float)) for t, pts in lines.items()]
     if len(items) < 2:
         return
-    # every segment against every segment in one table (the pairs' arithmetic is the one of a
-    # table per pair of lines); the pairs of different lines, in the order of the lines
+    # each line's segments against the segments of all later lines in one table (the pairs'
+    # arithmetic is the one of a table per pair of lines; memory: one line's rows at a time)
     a0 = np.concatenate([a[:-1] for _, a in items])
     a1 = np.concatenate([a[1:] for _, a in items])
     line = np.repeat(np.arange(len(items)), [len(a) - 1 for _, a in items])
-    cross, overlap = _cross_segments(a0, a1, a0, a1)
-    bad = (cross | overlap) & (line[:, None] < line[None, :])
-    i, j = np.nonzero(bad)
-    if i.size:  # named by the first pair of lines, and its first bad pair of segments
-        k = np.lexsort((j, i, line[j], line[i]))[0]
-        (ta, _), (tb, _) = items[line[i[k]]], items[line[j[k]]]
-        raise ValueError(f"{_line_name(ta)} and {_line_name(tb)} "
-                         f"{'overlap' if overlap[i[k], j[k]] else 'cross'}; move one of them (cracks may "
-                         "end on each other, not cross)")
+    start = np.r_[0, np.cumsum([len(a) - 1 for _, a in items])]
+    for ia in range(len(items) - 1):
+        rows, rest = slice(start[ia], start[ia + 1]), slice(start[ia + 1], None)
+        cross, overlap = _cross_segments(a0[rows], a1[rows], a0[rest], a1[rest])
+        i, j = np.nonzero(cross | overlap)
+        if i.size:  # named by the first later line it meets, and the first bad pair of segments
+            k = np.lexsort((j, i, line[rest][j]))[0]
+            tb = items[line[rest][j[k]]][0]
+            raise ValueError(f"{_line_name(items[ia][0])} and {_line_name(tb)} "
+                             f"{'overlap' if overlap[i[k], j[k]] else 'cross'}; move one of them (cracks may "
+                             "end on each other, not cross)")
 
 
 def check_domain(d: Domain):
