@@ -91,6 +91,8 @@ class CrackNetwork:
     def _segments(self):
         """(a, b, crack, index): every segment a-b of every crack, the crack's position in
         :attr:`cracks` and the segment's index along it."""
+        if not self.cracks:
+            return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64)
         a = np.concatenate([c.points[:-1] for c in self.cracks])
         b = np.concatenate([c.points[1:] for c in self.cracks])
         n = [len(c.points) - 1 for c in self.cracks]

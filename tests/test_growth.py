@@ -167,6 +167,11 @@ def test_crack_network_tips_and_junctions():
     assert tips == {(200, 0): False, (200, -1): False, (301, 0): False, (301, -1): True}
     np.testing.assert_allclose([t.direction for t in net.tips if t.tag == 301 and t.end == -1][0], [0.0, 1.0])
     assert net.counts() == {"cracks": 4, "junctions": 2, "tips": 4, "active_tips": 1}
+    # a crack that ends on its own first segment joins itself there; its segments at that end do not count
+    hook = CrackLine(302, "path", [(2.0, 0.0), (3.0, 0.0), (3.0, 1.0), (2.5, 0.0)])
+    net = CrackNetwork.from_cracks([hook], growing=[302])
+    assert [t for _, t in net.junctions] == [(302, 302)] and [(t.tag, t.end) for t in net.tips] == [(302, 0)]
+    assert CrackNetwork.from_cracks([]).counts() == {"cracks": 0, "junctions": 0, "tips": 0, "active_tips": 0}
 
 
 def test_tip_speeds_and_the_rayleigh_speed():
