@@ -171,7 +171,6 @@ def interface_stage(X, Rc, r, nowned, rates, F, Z, Sep, L):
             rates[3, f, q] = D[f, q] * o.w * P[f, _VS]  # the free opening rate D [[v_S^1]] (eta = 0)
 
 
-
 # Flat entry points: the driver passes the records' fields as separate arguments, because
 # numba's dispatcher types a namedtuple argument in Python (tens of µs a call, measured in the
 # demo's profile: ~1 ms a step), while arrays and scalars take its compiled fast path; the
@@ -191,6 +190,7 @@ def interface_targets_flat(X, P, I, nq, nb, D, delta, S0, cS, scale, reg, d0, w0
     interface_targets(X, Facets(P, I, nq, nb), State(D, delta), Separation(S0, cS, scale),
                       Laws(reg, d0, w0, kappa, beta, s_onset, s_bar, a),
                       Targets(vp, vm, sp, sm, s_B, S, s_star, vp_star, vm_star, eta, gamma, w))
+
 
 #: facets ahead whose cells' field values and residual rows are prefetched: the interface
 #: pass follows the bulk pass, which has pushed them out of the nearer caches
