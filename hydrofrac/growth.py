@@ -551,6 +551,7 @@ class GrowthDriver:
         self.joined = []  # (t, tip index, point)
         self.paths = [[np.asarray(t.point, float).copy()] for t in tips]
         self.count = 0
+        self.meshes = []  # per mesh: (t it starts at, cells, time step [s]) (growth.json's "meshes")
         self.last_criterion_s = 0.0  # criterion and nucleation time of the last call [s]
         self.events = []  # (t, tip index, angle [deg], s̆ max)
         self.modes = []  # per event: (mode mixity [deg], the crack carried load), :meth:`_tip_mode`
@@ -574,11 +575,19 @@ class GrowthDriver:
                         self.tree.append({"event": "arrest", "t": 0.0, "parent": i, "child": None,
                                           "angle_deg": None, "speed": None, "point": tip.point.tolist()})
         self.problem = self._build()
+        self._log_mesh()
 
     def _build(self):
         problem = self.build(self._polylines())
         problem.growth = self  # run() remeshes a problem through its driver
         return problem
+
+    def _log_mesh(self):
+        """Record the current mesh: the time it starts at, its cells and its time step (a step
+        that falls tells which extension made small cells)."""
+        s = getattr(self.problem, "solver", None)
+        if s is not None:
+            self.meshes.append((float(s.t), int(s.num_cells), float(s.dt)))
 
     @property
     def solver(self):
@@ -605,7 +614,9 @@ class GrowthDriver:
         A segment that would end within ``SNAP * da`` of another crack (short of it, or past
         the end of a crack beside it) meets it too, at the crossing of its extension or at
         the nearest point: a thinner gap would make Gmsh cells of that size, and the CFL
-        step with them (a tip 0.5 µm short of a fracture gave a 5e-11 s step)."""
+        step with them (a tip 0.5 µm short of a fracture gave a 5e-11 s step).  For the same
+        reason a meeting point within ``SNAP * da`` of a vertex of the crack met moves onto
+        that vertex (:meth:`_at_vertex`)."""
         own = np.array(self.paths[me][:-1])
         lines = list(self.obstacles) + [np.array(pth) for j, pth in enumerate(self.paths) if j != me and len(pth) > 1]
         if len(own) > 1:
@@ -631,7 +642,7 @@ class GrowthDriver:
         if hit.any():
             k = np.flatnonzero(hit)[np.argmin(s_[hit])]  # the first of the nearest along p -> q
             e = E[k]
-            return p + s_[k] * d, e / np.linalg.norm(e)
+            return self._at_vertex(p + s_[k] * d, A[k], E[k], p), e / np.linalg.norm(e)
         # ends beside a crack (e.g. next to its end point): the nearest point
         ee = np.maximum(E[:, 0] * E[:, 0] + E[:, 1] * E[:, 1], 1e-300)
         U = np.clip(((q[0] - A[:, 0]) * E[:, 0] + (q[1] - A[:, 1]) * E[:, 1]) / ee, 0.0, 1.0)
@@ -643,7 +654,25 @@ class GrowthDriver:
             return None
         k = np.flatnonzero(ok)[np.argmin(dist[ok])]
         e = E[k]
-        return (C[k], e / np.linalg.norm(e))
+        return (self._at_vertex(C[k], A[k], E[k], p), e / np.linalg.norm(e))
+
+    def _at_vertex(self, x, a, e, p):
+        """The meeting point ``x`` on the crack segment a -> a + e, moved onto the nearer of its
+        ends (a vertex of the crack met, a point of the geometry) when it lies within
+        ``SNAP * da`` of it.  Gmsh keeps both points, and an edge between them as short as
+        their distance: in the full-size re-fracture a tip that met a grown path 0.4 mm from
+        its vertex cut the step 43x (docs/studies/growth.md, "Junctions").  A vertex outside
+        the tips' region (``inside``: the wall end of a perforation) is no place to meet: the
+        point returned is then the tip's own ``p``, and the tip stops where it is
+        (:meth:`_extend`)."""
+        b = a + e
+        da_, db_ = np.linalg.norm(x - a), np.linalg.norm(x - b)
+        v, dv = (a, da_) if da_ <= db_ else (b, db_)
+        if not dv < SNAP * self.da:
+            return x
+        if self.inside is not None and not self.inside(v):
+            return np.asarray(p, float).copy()
+        return np.asarray(v, float).copy()
 
     def __call__(self, problem):
         solver = problem.solver
@@ -724,6 +753,7 @@ class GrowthDriver:
         new.after_restore()
         self.problem = new
         self.count += 1
+        self._log_mesh()
         self.write()
         return new
 
@@ -751,6 +781,9 @@ class GrowthDriver:
         if hit is not None:
             point = np.round(hit[0], 9)
             self.tips[i].point = point
+            d = (point - start) / np.linalg.norm(point - start)
+            if abs(d[0] * self.tips[i].direction[1] - d[1] * self.tips[i].direction[0]) > 1e-9:
+                self.tips[i].direction = d  # moved onto a vertex of the crack met: the segment's own direction
             self.tips[i].active = False  # arrested on the crack it met
             self.joined.append((solver.t, i, point.copy()))
             self.arrested[i] = (point.copy(), np.asarray(hit[1], float))
@@ -938,6 +971,7 @@ class GrowthDriver:
             "tree": self.tree,
             "arrested": [[int(i), np.asarray(p).tolist(), np.asarray(e).tolist()] for i, (p, e) in self.arrested.items()],
             "count": self.count,
+            "meshes": [list(m) for m in self.meshes],
             # a local remesh's mesh, which a full remesh of the same geometry would not give again
             "mesh": self.build.mesh_state() if with_mesh and hasattr(self.build, "mesh_state") else None},
             default=float)
@@ -960,6 +994,7 @@ class GrowthDriver:
         self.tree = list(d.get("tree", []))
         self.arrested = {int(i): (np.asarray(p, float), np.asarray(e, float)) for i, p, e in d.get("arrested", [])}
         self.count = int(d["count"])
+        self.meshes = [(float(t), int(n), float(dt)) for t, n, dt in d.get("meshes", [])]
 
     def restart(self, text):
         """Rebuild the mesh of a checkpoint's geometry state; returns the new problem (at its
@@ -991,7 +1026,8 @@ class GrowthDriver:
                 "nucleations": [{"t": t, "centre": np.asarray(c).tolist(), "angle_deg": a, "s_eff": s_}
                                 for t, c, a, s_ in self.nucleations],
                 "tree": self.tree, "counts": self.counts(),
-                "remeshes": self.count}
+                "remeshes": self.count,
+                "meshes": [{"t": t, "cells": n, "dt": dt} for t, n, dt in self.meshes]}
         network = getattr(self.problem, "network", None)
         if network is not None:  # the current geometry: cracks, junctions and tips
             data["network"] = network.as_dict()

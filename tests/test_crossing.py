@@ -135,3 +135,38 @@ def test_a_tip_next_to_a_crack_stops_instead_of_making_a_sliver():
     d._extend(NS(t=1e-3), 0, start + np.array([da, 0.0]), 0.0, 2e6)
     np.testing.assert_allclose(d.paths[0][-1], [0.3, 0.0])
     assert 0 in d.arrested
+
+
+def test_a_tip_meets_a_crack_at_its_vertex_when_near_it():
+    """A meeting point within SNAP * Δa of a vertex of the crack met moves onto that vertex
+    (a meeting 0.4 mm from a grown path's vertex cut the full-size re-fracture's step 43x:
+    Gmsh keeps both points and the edge between them); farther away it stays where the
+    segment crosses.  A vertex outside the tips' region (a perforation's wall end) is no
+    place to meet: the tip stops where it is."""
+    from types import SimpleNamespace as NS
+    da = 0.2
+    other = np.array([[0.3, -1.0], [0.3, 0.05], [0.3, 1.0]])  # a grown path with a vertex at y = 0.05
+
+    def driver(inside=None):
+        d = GrowthDriver(lambda polylines: NS(), [Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0]))],
+                         GrowthParams(r=0.1), da=da, threshold=1.0, tags=[300], obstacles=[other],
+                         inside=inside)
+        d.paths[0] = [np.array([0.0, 0.0]), np.array([0.2, 0.0])]
+        d.tips[0].point = d.paths[0][-1].copy()
+        return d
+
+    near = 0.05 - 0.4 * SNAP * da  # the segment crosses 0.4 SNAP Δa below the vertex
+    d = driver()
+    d._extend(NS(t=1e-3), 0, np.array([0.2 + da, near]), 0.0, 2e6)
+    np.testing.assert_allclose(d.paths[0][-1], [0.3, 0.05])
+    assert 0 in d.arrested and not d.tips[0].active
+    u = d.tips[0].direction  # the segment's own direction, onto the vertex
+    np.testing.assert_allclose(u, np.array([0.1, 0.05]) / np.hypot(0.1, 0.05))
+    far = 0.05 - 1.5 * SNAP * da
+    d = driver()
+    d._extend(NS(t=1e-3), 0, np.array([0.2 + da, 2 * far]), 0.0, 2e6)
+    np.testing.assert_allclose(d.paths[0][-1], [0.3, far])
+    # the vertex lies outside the tips' region: no segment, the tip stops where it is
+    d = driver(inside=lambda p: p[1] < 0.04)
+    d._extend(NS(t=1e-3), 0, np.array([0.2 + da, near]), 0.0, 2e6)
+    assert len(d.paths[0]) == 2 and not d.tips[0].active and 0 not in d.arrested

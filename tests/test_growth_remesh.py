@@ -134,6 +134,10 @@ def test_crack_growth_scenario_on_one_and_two_ranks(tmp_path, run_command, mpiru
     # the grown paths are kept in growth.json, and agree with the summary
     g = json.loads((tmp_path / "n1" / "growth.json").read_text())
     assert g["remeshes"] == acc["remeshes"] and len(g["events"]) == acc["extensions"]
+    # every mesh (the first and one per remesh) with its start time, cells and step
+    assert len(g["meshes"]) == acc["remeshes"] + 1 and g["meshes"][0]["t"] == 0.0
+    assert [m["t"] for m in g["meshes"]] == sorted(m["t"] for m in g["meshes"])
+    assert g["meshes"][-1]["cells"] == s[1]["cells"] and all(m["dt"] > 0 for m in g["meshes"])
     p0 = np.array(g["paths"][0])
     assert np.linalg.norm(np.diff(p0, axis=0), axis=1).sum() == pytest.approx(acc["tip0_grown_m"], rel=1e-9)
     first0 = next(e for e in g["events"] if e["tip"] == 0)
