@@ -15,6 +15,12 @@ and the separation traction S of loaded cracks (model.md §5, eqs. 14-16).
 * Separation traction of loaded facets: ``S^1 = -[f_p p_h(t) + (1 - f_p) <-s_B^1>]``,
   ``S^2 = 0``; unloaded facets: S = 0.
 
+* Fluid volume (optional, ``HydraulicParams.volume``): the fluid pumped in by time t, V(t),
+  fills the loaded facets from the sources outward, in the order of their distance along
+  the network, each up to its aperture (at least δ̄'δ̃); beyond the fluid's front a crack
+  is dry, S = 0 as on an unloaded crack (:func:`fluid_fill`, docs/model.md, "A finite fluid
+  volume").  Without it the fluid supply is unlimited (the paper's pressure control).
+
 Connectivity and f_p are updated once per time step from the current state
 (they lag the Runge-Kutta stages by at most one step).
 """
@@ -153,6 +159,52 @@ def _widest_paths(n, a, b, w, src_v):
     return best
 
 
+def fluid_fill(edges_vertices, lengths, loaded, source, capacity, volume):
+    """(wet fraction per facet (m,), near end per facet (m,), 0: va, 1: vb) of a fluid volume
+    ``volume`` [m² per m of thickness] that fills the ``loaded`` facets from the ``source``
+    facets outward: in the order of their distance along the loaded network (the mean of the
+    ends' Dijkstra distances; ties by index), each up to its ``capacity`` [m²].  The facet at
+    the front is wet over the fraction its share of the volume fills, from its end nearer the
+    sources; facets beyond it and unloaded ones are dry (0).  The sources (the perforations,
+    open to the wellbore) are always wet: ``volume`` is the fluid beyond them."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+    m = edges_vertices.shape[0]
+    wet, near = np.zeros(m), np.zeros(m, dtype=np.int64)
+    source = np.asarray(source, dtype=bool)
+    wet[loaded & source] = 1.0
+    idx = np.flatnonzero(loaded)
+    if not idx.size:
+        return wet, near
+    uniq, inv = np.unique(np.asarray(edges_vertices)[idx].reshape(-1), return_inverse=True)
+    e = inv.reshape(-1, 2)
+    w = np.asarray(lengths, dtype=float)[idx]
+    G = coo_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
+                   shape=(uniq.size, uniq.size)).tocsr()
+    src = np.unique(e[source[idx]].reshape(-1))
+    if not src.size:
+        return wet, near
+    dv = dijkstra(G, indices=src, min_only=True)[e]  # (loaded facets, 2): each end's distance
+    dist = dv.mean(axis=1)
+    order = np.argsort(dist, kind="stable")
+    order = order[np.isfinite(dist[order]) & ~source[idx][order]]
+    cap = np.asarray(capacity, dtype=float)[idx][order]
+    before = np.cumsum(cap) - cap
+    wet[idx[order]] = np.clip((volume - before) / np.maximum(cap, 1e-300), 0.0, 1.0)
+    near[idx] = (dv[:, 1] < dv[:, 0]).astype(np.int64)
+    return wet, near
+
+
+def wet_points(wet, near, s_q):
+    """(m, nq) wet fraction at each Gauss point (abscissae ``s_q`` in [0, 1] from va): a facet
+    wet over the fraction ``wet`` from its ``near`` end, each point's share (1/nq) filled in
+    turn, so that the points' mean is the facet's fraction."""
+    nq = len(s_q)
+    rank = np.argsort(np.argsort(s_q))  # each point's place from va
+    from_near = np.where(np.asarray(near)[:, None] == 0, rank[None, :], nq - 1 - rank[None, :])
+    return np.clip(np.asarray(wet)[:, None] * nq - from_near, 0.0, 1.0)
+
+
 @dataclass(frozen=True)
 class HydraulicParams:
     """Hydraulic loading of a crack network.
@@ -166,6 +218,9 @@ class HydraulicParams:
         from a source to it (the load reaches only what open cracks connect to the wellbore;
         docs/model.md, "The pressure factor through connected apertures"); False = eq. (15) at
         each vertex alone
+    volume : V(t) [m² per m of thickness], the fluid in the network, a piecewise-linear table
+        (pumped in, or flowing back out): it fills the loaded network from the sources and
+        the load ends at its front (:func:`fluid_fill`); None = unlimited (the paper)
     """
 
     pressure: PiecewiseLinear
@@ -174,6 +229,7 @@ class HydraulicParams:
     regularized: bool = True
     threshold: float = 0.99
     connected: bool = True
+    volume: PiecewiseLinear | None = None
 
     def __post_init__(self):
         if not isinstance(self.pressure, PiecewiseLinear):
@@ -184,6 +240,10 @@ class HydraulicParams:
         if not 0 < self.threshold <= 1:
             raise ValueError(f"threshold (damage at which a facet joins the network) must be in (0, 1]; "
                              f"got {self.threshold}")
+        if self.volume is not None and not (isinstance(self.volume, PiecewiseLinear)
+                                            and min(self.volume.values) >= 0):
+            raise ValueError("volume (the fluid in the network) must be a PiecewiseLinear table of (time [s], "
+                             f"volume [m^2 per m]) with no negative volume; got {self.volume!r}")
         if len(self.sources) == 0:
             raise ValueError("sources: give at least one facet tag of a perforation")
         object.__setattr__(self, "sources", tuple(int(s) for s in self.sources))
@@ -216,6 +276,7 @@ class Hydraulics:
         self.fp_q = np.zeros((iface.facets.size, iface.nq))
         self.loaded = np.zeros(iface.facets.size, dtype=bool)
         self.network = np.zeros(iface.facets.size, dtype=bool)
+        self.wet_q = np.ones((iface.facets.size, iface.nq))  # fluid behind the front (volume given)
         self._components = None  # (network, sources, loaded) of the last update, all ranks
         self.update()
 
@@ -227,8 +288,12 @@ class Hydraulics:
         active = (D >= self.params.threshold) | self.source
         op = iface.state[1]
         ends = np.stack([op[:, 0], op[:, -1]], axis=1) if iface.facets.size else np.zeros((0, 2))
+        volume = self.params.volume
+        # a facet holds the fluid of its mean aperture, at least δ̄'δ̃ (where it is fully loaded)
+        cap = (np.maximum((op * iface.weights).sum(axis=1), self.scale * iface.length) if volume is not None
+               else None)
         # gather the whole network (crack facets are a small part of the mesh)
-        parts = self.comm.allgather((self.vertices, active, self.source, ends, self.scale))
+        parts = self.comm.allgather((self.vertices, active, self.source, ends, self.scale, iface.length, cap))
         V = np.concatenate([p[0] for p in parts]).reshape(-1, 2)
         A = np.concatenate([p[1] for p in parts]).astype(bool)
         Src = np.concatenate([p[2] for p in parts]).astype(bool)
@@ -253,9 +318,15 @@ class Hydraulics:
         else:
             fp_q = np.ones((iface.facets.size, iface.nq))
         fp_q[~self.loaded] = 0.0
-        self.fp_q = fp_q
+        wet_q = None
+        if volume is not None:
+            wet, near = fluid_fill(V, np.concatenate([p[5] for p in parts]), loaded, Src,
+                                   np.concatenate([p[6] for p in parts]), volume(iface.solver.t))
+            self.wet_q = wet_q = wet_points(wet[mine], near[mine], self.s_q)
+        # the fraction of p_h a point carries: f_p behind the fluid's front
+        self.fp_q = fp_q if wet_q is None else fp_q * wet_q
         # the separation law per Gauss point until the next update (eq. 16)
-        self._S0_unit, self._cS = rm.hydraulic_law(fp_q, self.loaded)
+        self._S0_unit, self._cS = rm.hydraulic_law(fp_q, self.loaded, wet_q)
 
     def separation_traction(self, t):
         """Eq. (16) on loaded facets, S = 0 elsewhere, as the affine law of the interface
@@ -264,8 +335,20 @@ class Hydraulics:
 
     # ----------------------------------------------------------------- output
     def fields(self):
-        return {"f_p": self.fp_q, "loaded": np.repeat(self.loaded[:, None], self.iface.nq, axis=1).astype(float),
-                "network": np.repeat(self.network[:, None], self.iface.nq, axis=1).astype(float)}
+        out = {"f_p": self.fp_q, "loaded": np.repeat(self.loaded[:, None], self.iface.nq, axis=1).astype(float),
+               "network": np.repeat(self.network[:, None], self.iface.nq, axis=1).astype(float)}
+        if self.params.volume is not None:
+            out["wet"] = self.wet_q * out["loaded"]
+        return out
+
+    def fluid(self):
+        """(volume of the loaded network's apertures ∫ max(δ, 0) ds [m²], wet length [m],
+        fluid volume V(t) [m², inf without a volume]) (global)."""
+        w, loaded = self.iface.weights, self.loaded[:, None]
+        loc = np.array([(np.maximum(self.iface.state[1], 0.0) * w * loaded).sum(), (self.wet_q * w * loaded).sum()])
+        vol, wet = self.comm.allreduce(loc, op=MPI.SUM)
+        v = self.params.volume
+        return float(vol), float(wet), (float(v(self.iface.solver.t)) if v is not None else float("inf"))
 
     def loaded_length(self):
         """Length of the loaded network weighted by f_p, and total network length [m] (global)."""

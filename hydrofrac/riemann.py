@@ -336,15 +336,18 @@ def mode_fractions(D, eta, gamma):
     return np.stack([1 - D, D * eta * gamma, D * eta * (1 - gamma), D * (1 - eta)], axis=-1)
 
 
-def hydraulic_law(fp, loaded):
+def hydraulic_law(fp, loaded, wet=None):
     """Eq. (16) as the affine separation law of the interface kernel,
     S^1 = p_h S0 + cS <-s_B^1>, S^2 = 0: on loaded facets S^1 = -f_p p_h - (1 - f_p) <-s_B^1>,
-    elsewhere S = 0.  ``fp`` (nf, nq), ``loaded`` (nf,); returns (S0 (nf, nq, 2), cS (nf, nq))."""
+    elsewhere S = 0.  ``fp`` (nf, nq), ``loaded`` (nf,); returns (S0 (nf, nq, 2), cS (nf, nq)).
+    ``wet`` (nf, nq): the fraction of each point behind a finite fluid's front (docs/model.md,
+    "A finite fluid volume"); its dry part is as an unloaded crack's, S = 0, so that
+    S^1 = -wet [f_p p_h + (1 - f_p) <-s_B^1>]."""
     fp = np.asarray(fp, dtype=float)
-    on = np.asarray(loaded, dtype=bool)[:, None]
+    on = np.asarray(loaded, dtype=bool)[:, None] * (1.0 if wet is None else np.asarray(wet, dtype=float))
     S0 = np.zeros(fp.shape + (2,))
-    S0[..., 0] = np.where(on, -fp, 0.0)
-    return S0, np.ascontiguousarray(np.where(on, -(1.0 - fp), 0.0))
+    S0[..., 0] = -on * fp
+    return S0, np.ascontiguousarray(-on * (1.0 - fp))
 
 
 def target_damage(s_eff, s_onset, s_bar):

@@ -90,6 +90,8 @@ class Wellbore:
         (:class:`~hydrofrac.hydraulics.HydraulicParams`)
     degree, material, p0 (confinement [Pa]), damage, contact, delta_bar (δ̄'), path_friction
     growth : free growth from the perforation tips (:class:`Growth`), or None
+    volume : V(t), the fluid in the network (:class:`~hydrofrac.hydraulics.HydraulicParams`),
+        or None: an unlimited supply at p_h (the paper)
     cfl : the solver's CFL constant (None: its documented stable value; studies of dt take less)
     """
 
@@ -108,6 +110,7 @@ class Wellbore:
     delta_bar: float = 0.1
     path_friction: float = 0.6
     growth: Optional[Growth] = None
+    volume: Optional[PiecewiseLinear] = None
     cfl: Optional[float] = None
 
     def __post_init__(self):
@@ -168,7 +171,8 @@ def build(desc: Wellbore, comm=MPI.COMM_WORLD, paths=None, path_tags=None, out=N
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks))
     iface = Interface(solver, fm.facet_tags, cracks, damage=desc.damage, contact=desc.contact)
     hyd = HydraulicParams(pressure=desc.pressure, delta_bar=desc.delta_bar, regularized=desc.regularized,
-                          connected=desc.connected, sources=[c.tag for c in network.cracks if c.kind == "perforation"])
+                          connected=desc.connected, sources=[c.tag for c in network.cracks if c.kind == "perforation"],
+                          volume=desc.volume)
     problem = Problem(solver, iface, hyd, network=network, facet_tags=fm.facet_tags)
     problem.fracture_mesh = fm
     return problem

@@ -10,16 +10,23 @@
 # outward, because a crack vertex uses the aperture of *all* loaded facets that
 # meet there (model.md §5).
 #
+# The fluid is finite (docs/model.md, "A finite fluid volume"): a pump puts in `--pump-rate`
+# Q = 1.5 m²/s (per m of thickness) while the load is on, the fluid flows back out with the
+# removal, and the load ends at the fluid's front.  The cracks therefore grow only as far as
+# the fluid drives them, close once it has flowed back, and the returning fluid re-loads them
+# from the perforations outward.  `--pump-rate inf` is the paper's unlimited supply: then the
+# cracks reach the outer boundary while the load is held and stay open in the off period
+# (docs/studies/scenarios.md).
+#
 # The cracks grow freely from the perforation tips with Gmsh remeshing (the intersection
-# scenario's driver and criterion: `hydrofrac.wellbore.growth_driver`), out to the extent of
-# the pre-meshed problem (`--growth-max-radius`, default 2.9 m, `--quick` 0.65 m): without a
-# limit they run to the outer boundary while the load is held and then do not close in the
-# off period (docs/studies/scenarios.md).  `--premeshed` grows them along radial potential paths (bonded
-# interfaces, D = 0) of that extent instead.
+# scenario's driver and criterion: `hydrofrac.wellbore.growth_driver`); microcracks nucleate
+# where the bulk reaches the strength (4 per run).  `--premeshed` grows the cracks along radial
+# potential paths (bonded interfaces, D = 0) of 2.5 m (`--quick` 0.4 m) instead.
 #
 #     mpirun -n 2 python scenarios/refracture.py [--quick] [--premeshed] [--out DIR]
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -34,10 +41,10 @@ from hydrofrac.run import Monitor, RunOptions
 from hydrofrac.run import run as run_problem
 
 P_PEAK = 19.4e6
-# microcracks per run, (full size, --quick): at full size the unloaded microcracks, growing
-# in shear while the load is off, meet the main cracks and the perforations at shallow angles
-# near the wellbore, and the cells there cut the step 54x (docs/studies/scenarios.md)
-NUCLEATION_CAP = (0, 4)
+# microcracks per run, (full size, --quick)
+NUCLEATION_CAP = (4, 4)
+# the pump rate [m²/s per m of thickness] while the load is on (docs/studies/scenarios.md)
+PUMP_RATE = 1.5
 ANGLES = (0.0, 90.0, 180.0, 270.0)
 
 
@@ -47,6 +54,21 @@ ANGLES = (0.0, 90.0, 180.0, 270.0)
 def load_history(t_hold=4e-3, t_off=5e-3, t_on=8e-3, t_end=10e-3, p0=CONFINEMENT, peak=P_PEAK):
     t = [0.0, 1e-6, t_hold, t_off, t_on, t_on + 1e-5, t_end]
     return PiecewiseLinear(t, [p0, peak, peak, 0.0, 0.0, peak, peak]), t_off, t_on, t_end
+
+
+# ## The fluid (docs/model.md, "A finite fluid volume")
+# With a pump rate Q [m²/s per m of thickness] the fluid in the network is V(t): pumped in at Q
+# while the load is on, flowing back out with the removal (V = 0 when p_h = 0) and pumped in
+# again from the re-loading.  The load ends at the fluid's front, so the cracks grow only as far
+# as the fluid drives them, and the returning load spreads from the perforations outward at the
+# rate the fluid fills the open network.  Without it (`--pump-rate inf`) the supply is unlimited.
+def fluid_volume(pressure, rate):
+    """V(t) of a pump at ``rate`` [m²/s] on the on/off/on ``pressure`` history, or None for inf."""
+    if math.isinf(rate):
+        return None
+    t = list(pressure.times)  # 0, ramp, hold end, removed, re-load, its ramp, end
+    pumped = rate * (t[2] - t[0])
+    return PiecewiseLinear([t[0], t[2], t[3], t[4], t[6]], [0.0, pumped, 0.0, 0.0, rate * (t[6] - t[4])])
 
 
 def geometry(quick=False):
@@ -61,18 +83,15 @@ def geometry(quick=False):
     return dom, perfs, [2.5] * 4, load_history()
 
 
-def description(quick=False, degree=2, tau=30e-6, growth=None, connected=False) -> wellbore.Wellbore:
-    """The problem as data.  Free growth (``growth``) stops, unless told otherwise, at the
-    extent of the pre-meshed paths: without a limit the cracks run to the outer boundary
-    while the load is held, and then do not close in the off period
-    (docs/studies/scenarios.md)."""
+def description(quick=False, degree=2, tau=30e-6, growth=None, connected=False,
+                pump_rate=PUMP_RATE) -> wellbore.Wellbore:
+    """The problem as data: free growth (``growth``) or the pre-meshed paths, and the fluid of a
+    pump at ``pump_rate`` [m²/s] (inf: an unlimited supply)."""
     dom, perfs, lengths, (pressure, _, _, _) = geometry(quick)
     paths = wellbore.radial_paths(dom, perfs, lengths)
-    if growth is not None and growth.max_radius is None:
-        from dataclasses import replace
-        growth = replace(growth, max_radius=dom.wellbore_radius + perfs[0].length + lengths[0])
     return wellbore.Wellbore(dom, perfs, pressure, paths=() if growth else paths, regularized=True, degree=degree,
-                             damage=DamageParams(tau=tau), growth=growth, connected=connected)
+                             damage=DamageParams(tau=tau), growth=growth, connected=connected,
+                             volume=fluid_volume(pressure, pump_rate))
 
 
 def setup(comm=MPI.COMM_WORLD, record=None, **params):
@@ -142,8 +161,11 @@ class RefractureMonitor(Monitor):
 
     def history(self, problem):
         t, f = self.sep_fraction[-1][:2] if self.sep_fraction else (0.0, 0.0)
+        aperture_volume, wet_length, fluid = problem.hydraulics.fluid()
         return {"p_h": problem.hydraulics.params.pressure(problem.t), "separated_fraction": f,
-                "network_length": problem.hydraulics.loaded_length()[1]}
+                "network_length": problem.hydraulics.loaded_length()[1],
+                # the loaded network's open volume, the fluid's length along it and V(t)
+                "aperture_volume": aperture_volume, "wet_length": wet_length, "fluid_volume": fluid}
 
     def accuracy(self, problem):
         iface, hyd, comm, solver = problem.interface, problem.hydraulics, problem.comm, problem.solver
@@ -254,6 +276,10 @@ def run(problem, options: RunOptions, t_off, t_on):
 def main(argv=None):
     parser = cli.scenario_parser("Re-fracturing under an on/off/on hydraulic load (paper §3.2)")
     parser.add_argument("--tau", type=float, default=30e-6, help="damage relaxation time tau~ [s]")
+    parser.add_argument("--pump-rate", type=float, default=PUMP_RATE,
+                        help="fluid pumped in while the load is on [m^2/s per m of thickness], flowing back out with "
+                             "the removal; the load ends at the fluid's front (default %(default)s; inf: an unlimited "
+                             "supply, the paper's pressure control)")
     cli.add_pressure_factor_argument(parser, "local", ": with 'connected' a crack beyond a part that closes first "
                                      "is cut off from the wellbore while the load is off and stays open, "
                                      "docs/studies/scenarios.md")
@@ -264,11 +290,13 @@ def main(argv=None):
                      frames=50)
     cli.check_growth_arguments(parser, args)
     _, t_off, t_on, _ = histories[args.quick]
+    if not args.pump_rate > 0:
+        parser.error(f"--pump-rate must be > 0 m^2/s (inf: unlimited); got {args.pump_rate}")
     params = dict(quick=args.quick, degree=args.degree, tau=args.tau, growth=wellbore.Growth.from_args(args),
-                  connected=args.pressure_factor == "connected")
+                  connected=args.pressure_factor == "connected", pump_rate=args.pump_rate)
     desc = description(**params)
     r0 = desc.domain.wellbore_radius + desc.perforations[0].length
-    if desc.growth is not None and not desc.growth.max_radius > r0:
+    if desc.growth is not None and desc.growth.max_radius is not None and not desc.growth.max_radius > r0:
         parser.error(f"--growth-max-radius {desc.growth.max_radius} m does not reach beyond the perforation tips "
                      f"({r0} m from the centre); make it larger")
     problem = setup(record=Path(args.out) / "growth.json", **params)

@@ -137,6 +137,8 @@ def test_run_end_time_must_be_positive():
     ("refracture", ["--growth", "--growth-da", "-2"], "--growth-da"),
     ("refracture", ["--growth", "--growth-beta", "-1"], "--growth-beta"),
     ("refracture", ["--growth-max-radius", "-1"], "--growth-max-radius"),
+    ("refracture", ["--pump-rate", "0"], "--pump-rate"),
+    ("refracture", ["--pump-rate", "nan"], "--pump-rate"),
 ])
 def test_growth_options_rejected_before_meshing(name, args, word, capsys, tmp_path):
     """Bad growth or mesh options stop a wellbore scenario at once (exit 2) with the option

@@ -10,8 +10,8 @@ import pytest
 
 from hydrofrac import ROCK
 from hydrofrac.boundary import PiecewiseLinear
-from hydrofrac.hydraulics import (HydraulicParams, components, connected_factor, loaded_facets,
-                                  pressure_factor_vertices)
+from hydrofrac.hydraulics import (HydraulicParams, components, connected_factor, fluid_fill, loaded_facets,
+                                  pressure_factor_vertices, wet_points)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -122,6 +122,49 @@ def test_connected_factor_is_the_widest_path():
         np.testing.assert_allclose(connected_factor(E, loaded, fp, source), brute(E, loaded, fp, source))
 
 
+# --------------------------------------------------------------------------- a finite fluid volume
+def test_fluid_fills_the_network_from_the_sources_outward():
+    """docs/model.md, "A finite fluid volume": a volume V fills the loaded facets in the order
+    of their distance along the network from the sources, each up to its capacity; the facet
+    at the front is wet over the fraction V fills; the sources are always wet, the facets
+    beyond the front, unloaded facets and facets not connected to a source are dry."""
+    # source 0-1; arm A 1-2-3-4 (facets listed outward, the last one reversed: 4 -> 3), a
+    # shorter arm B 1-5, an unloaded facet 5-6 and a loaded island 7-8 with no source
+    E = _network([[0, 1], [1, 2], [2, 3], [4, 3], [1, 5], [5, 6], [7, 8]])
+    L = np.array([1.0, 1.0, 1.0, 1.0, 0.5, 1.0, 1.0])
+    loaded = np.array([1, 1, 1, 1, 1, 0, 1], bool)
+    source = np.array([1, 0, 0, 0, 0, 0, 0], bool)
+    cap = np.array([9.0, 2.0, 3.0, 4.0, 1.0, 1.0, 1.0])
+    # order by distance: B (0.25: mean of 0 and 0.5), A1 (0.5), A2 (1.5), A3 (2.5)
+    for V, want in [(0.0, [1, 0, 0, 0, 0, 0, 0]), (0.5, [1, 0, 0, 0, 0.5, 0, 0]),
+                    (2.0, [1, 0.5, 0, 0, 1, 0, 0]), (4.5, [1, 1, 0.5, 0, 1, 0, 0]),
+                    (8.0, [1, 1, 1, 0.5, 1, 0, 0]), (50.0, [1, 1, 1, 1, 1, 0, 0])]:
+        wet, near = fluid_fill(E, L, loaded, source, cap, V)
+        np.testing.assert_allclose(wet, want, err_msg=f"V = {V}")
+    # the front facet 4 -> 3 fills from its end 3, the one nearer the source
+    np.testing.assert_array_equal(near[1:5], [0, 0, 1, 0])
+
+
+def test_wet_points_fill_each_facet_from_its_near_end():
+    s_q = np.array([0.1127, 0.5, 0.8873])  # 3 Gauss points from va
+    w = wet_points(np.array([0.5, 0.5, 1.0, 0.0]), np.array([0, 1, 0, 1]), s_q)
+    np.testing.assert_allclose(w.mean(axis=1), [0.5, 0.5, 1.0, 0.0])  # the facet's fraction
+    np.testing.assert_allclose(w[0], [1.0, 0.5, 0.0])  # from va
+    np.testing.assert_allclose(w[1], [0.0, 0.5, 1.0])  # from vb
+
+
+def test_dry_crack_carries_no_traction():
+    """Eq. (16) behind the front, S = 0 (an unloaded crack's) beyond it: a dry point neither
+    carries p_h nor the compressive bonded traction that holds a loaded, closing crack open."""
+    from hydrofrac import riemann as rm
+    fp = np.array([[1.0, 0.25]])
+    S0, cS = rm.hydraulic_law(fp, np.array([True]), wet=np.array([[1.0, 0.0]]))
+    np.testing.assert_allclose(S0[..., 0], [[-1.0, 0.0]])
+    np.testing.assert_allclose(cS, [[0.0, 0.0]])
+    S0, cS = rm.hydraulic_law(fp, np.array([True]))
+    np.testing.assert_allclose(cS, [[0.0, -0.75]])
+
+
 # --------------------------------------------------------------------------- bad input
 def test_bad_hydraulic_parameters():
     with pytest.raises(ValueError, match="increase strictly"):
@@ -132,6 +175,8 @@ def test_bad_hydraulic_parameters():
             HydraulicParams(pressure=p, sources=[100], delta_bar=bad)
     with pytest.raises(ValueError, match="sources"):
         HydraulicParams(pressure=p, sources=[])
+    with pytest.raises(ValueError, match="volume"):
+        HydraulicParams(pressure=p, sources=[100], volume=PiecewiseLinear([0.0, 1.0], [0.0, -1.0]))
 
 
 def test_bad_geometry_is_rejected_before_meshing():

@@ -1,5 +1,5 @@
-"""Re-fracture behaviour at --quick size (issue 5): closure after the load is removed,
-re-loading from the perforations outward."""
+"""Re-fracture behaviour at --quick size: closure after the load is removed, re-loading from
+the perforations outward as the pumped fluid returns (docs/model.md, "A finite fluid volume")."""
 import json
 import subprocess
 import sys
@@ -27,8 +27,8 @@ def summary(request, tmp_path_factory):
     s["variant"] = request.param
     if request.param != "premeshed":
         acc = s["accuracy"]
-        # every tip grew to within one step (0.1 m) of the pre-meshed paths' extent (0.65 m
-        # from the centre, 0.4 m beyond the perforation tips), where growth stops
+        # the main cracks grew at least as far as the pre-meshed paths reach (0.4 m beyond the
+        # perforation tips) less one step (0.1 m): the fluid drives them there (no growth limit)
         assert acc["remeshes"] >= 3 and acc["extensions"] >= 4 * 3, acc
         assert acc["grown_length"] >= 4 * (0.4 - 0.1) - 1e-9, acc
         assert s["remeshing"]["remeshes"] == acc["remeshes"]
@@ -49,18 +49,17 @@ def test_cracks_close_to_contact_without_energy_growth(summary):
 
 def test_reloading_spreads_from_the_perforations(summary):
     acc = summary["accuracy"]
-    # every facet of the network connected to the perforations that had unloaded is loaded
-    # again, and most had unloaded
-    assert acc["reloaded_facets"] + acc["loaded_when_reloading"] == acc["network_facets"], acc
-    assert acc["reloaded_facets"] > max(10, acc["loaded_when_reloading"])
+    # the fluid flowed back with the removal: no facet kept its load, and the returning fluid
+    # re-loads a part of the network (as far as the pumped volume reaches by the end)
+    assert acc["loaded_when_reloading"] == 0, acc
+    assert 10 <= acc["reloaded_facets"] <= acc["network_facets"], acc
     print(f"{summary['variant']}: re-load order Spearman {acc['reload_order_spearman']:.3f} (main cracks), "
           f"{acc['reload_order_spearman_network']:.3f} (network)")
-    if summary["variant"] == "growth":
-        # the microcracks that joined the main cracks load them from their junctions as well
-        # (docs/studies/scenarios.md): no order is asserted there
-        return
-    # facets reach f_p > 0.5 in the order of their distance along the network from the perforations
+    # facets reach f_p > 0.5 in the order of their distance along the network from the
+    # perforations: the returning fluid fills the network from them (with an unlimited supply,
+    # --pump-rate inf, the default network gave 0.77 on the main cracks and 0.42 over the network)
     assert acc["reload_order_spearman"] > 0.9, acc
+    assert acc["reload_order_spearman_network"] > 0.9, acc
 
 
 def test_microcracks_nucleate_grow_in_shear_and_stay_arrested_in_contact(summary):
