@@ -159,39 +159,32 @@ def _widest_paths(n, a, b, w, src_v):
     return best
 
 
-def fluid_fill(edges_vertices, lengths, loaded, source, capacity, volume):
+def fill_order(edges_vertices, lengths, loaded, source):
+    """(order, near) of :func:`fluid_fill`: the loaded facets that are not sources and are
+    connected to one, in the order of their distance along the loaded network (the mean of the
+    ends' Dijkstra distances; ties by index), and per facet (m,) the end nearer the sources
+    (0: va, 1: vb).  They change only when the loaded set does."""
+    dv = end_distances(edges_vertices, lengths, loaded, source)
+    dist = dv.mean(axis=1)
+    idx = np.flatnonzero(np.asarray(loaded, dtype=bool) & ~np.asarray(source, dtype=bool) & np.isfinite(dist))
+    order = idx[np.argsort(dist[idx], kind="stable")]
+    return order, (dv[:, 1] < dv[:, 0]).astype(np.int64)
+
+
+def fluid_fill(edges_vertices, lengths, loaded, source, capacity, volume, order=None):
     """(wet fraction per facet (m,), near end per facet (m,), 0: va, 1: vb) of a fluid volume
     ``volume`` [m² per m of thickness] that fills the ``loaded`` facets from the ``source``
-    facets outward: in the order of their distance along the loaded network (the mean of the
-    ends' Dijkstra distances; ties by index), each up to its ``capacity`` [m²].  The facet at
-    the front is wet over the fraction its share of the volume fills, from its end nearer the
-    sources; facets beyond it and unloaded ones are dry (0).  The sources (the perforations,
-    open to the wellbore) are always wet: ``volume`` is the fluid beyond them."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import dijkstra
-    m = edges_vertices.shape[0]
-    wet, near = np.zeros(m), np.zeros(m, dtype=np.int64)
-    source = np.asarray(source, dtype=bool)
-    wet[loaded & source] = 1.0
-    idx = np.flatnonzero(loaded)
-    if not idx.size:
-        return wet, near
-    uniq, inv = np.unique(np.asarray(edges_vertices)[idx].reshape(-1), return_inverse=True)
-    e = inv.reshape(-1, 2)
-    w = np.asarray(lengths, dtype=float)[idx]
-    G = coo_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
-                   shape=(uniq.size, uniq.size)).tocsr()
-    src = np.unique(e[source[idx]].reshape(-1))
-    if not src.size:
-        return wet, near
-    dv = dijkstra(G, indices=src, min_only=True)[e]  # (loaded facets, 2): each end's distance
-    dist = dv.mean(axis=1)
-    order = np.argsort(dist, kind="stable")
-    order = order[np.isfinite(dist[order]) & ~source[idx][order]]
-    cap = np.asarray(capacity, dtype=float)[idx][order]
+    facets outward, in :func:`fill_order` (or the given ``(order, near)``), each up to its
+    ``capacity`` [m²].  The facet at the front is wet over the fraction its share of the volume
+    fills, from its end nearer the sources; facets beyond it and unloaded ones are dry (0).
+    The sources (the perforations, open to the wellbore) are always wet: ``volume`` is the
+    fluid beyond them."""
+    order, near = order if order is not None else fill_order(edges_vertices, lengths, loaded, source)
+    wet = np.zeros(edges_vertices.shape[0])
+    wet[np.asarray(loaded, dtype=bool) & np.asarray(source, dtype=bool)] = 1.0
+    cap = np.asarray(capacity, dtype=float)[order]
     before = np.cumsum(cap) - cap
-    wet[idx[order]] = np.clip((volume - before) / np.maximum(cap, 1e-300), 0.0, 1.0)
-    near[idx] = (dv[:, 1] < dv[:, 0]).astype(np.int64)
+    wet[order] = np.clip((volume - before) / np.maximum(cap, 1e-300), 0.0, 1.0)
     return wet, near
 
 
@@ -278,6 +271,7 @@ class Hydraulics:
         self.network = np.zeros(iface.facets.size, dtype=bool)
         self.wet_q = np.ones((iface.facets.size, iface.nq))  # fluid behind the front (volume given)
         self._components = None  # (network, sources, loaded) of the last update, all ranks
+        self._fill = None  # (loaded, fill_order) of the last update, all ranks
         self.update()
 
     # ----------------------------------------------------------------- per step
@@ -320,8 +314,11 @@ class Hydraulics:
         fp_q[~self.loaded] = 0.0
         wet_q = None
         if volume is not None:
-            wet, near = fluid_fill(V, np.concatenate([p[5] for p in parts]), loaded, Src,
-                                   np.concatenate([p[6] for p in parts]), volume(iface.solver.t))
+            # the fill order changes only with the loaded set (the same on every rank)
+            if self._fill is None or not np.array_equal(self._fill[0], loaded):
+                self._fill = (loaded, fill_order(V, np.concatenate([p[5] for p in parts]), loaded, Src))
+            wet, near = fluid_fill(V, None, loaded, Src, np.concatenate([p[6] for p in parts]),
+                                   volume(iface.solver.t), order=self._fill[1])
             self.wet_q = wet_q = wet_points(wet[mine], near[mine], self.s_q)
         # the fraction of p_h a point carries: f_p behind the fluid's front
         self.fp_q = fp_q if wet_q is None else fp_q * wet_q
@@ -358,12 +355,13 @@ class Hydraulics:
         return self.comm.allreduce(lf, op=MPI.SUM), self.comm.allreduce(ln, op=MPI.SUM)
 
 
-def network_distance(edges_vertices, lengths, active, source):
-    """Distance along the network (through active facets) from the nearest source facet,
-    per facet (mean of its two end vertices; inf if not connected)."""
+def end_distances(edges_vertices, lengths, active, source):
+    """(m, 2): each facet end's distance along the network (through ``active`` facets) from the
+    nearest vertex of an active source facet; inf where not connected."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
     ev = np.asarray(edges_vertices)
+    active, source = np.asarray(active, dtype=bool), np.asarray(source, dtype=bool)
     uniq, inv = np.unique(ev.reshape(-1), return_inverse=True)
     e = inv.reshape(-1, 2)[active]
     w = np.asarray(lengths, dtype=float)[active]
@@ -371,7 +369,12 @@ def network_distance(edges_vertices, lengths, active, source):
     G = coo_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
     src = np.unique(inv.reshape(-1, 2)[active & source].reshape(-1))
     if src.size == 0:
-        return np.full(ev.shape[0], np.inf)
+        return np.full(ev.shape, np.inf)
     d = dijkstra(G, indices=src, min_only=True)
-    dv = d[inv.reshape(-1, 2)]
-    return dv.mean(axis=1)
+    return d[inv.reshape(-1, 2)]
+
+
+def network_distance(edges_vertices, lengths, active, source):
+    """Distance along the network (through active facets) from the nearest source facet,
+    per facet (mean of its two end vertices; inf if not connected)."""
+    return end_distances(edges_vertices, lengths, active, source).mean(axis=1)
