@@ -15,8 +15,8 @@ from the ``cracks`` part of the frames (integrated along the facets, see
 :func:`hydrofrac.postprocess.rundata.crack_frame_statistics`), drawn as markers:
 
 * ``crack_length.png``: debonded length ∫D ds, network length ∫network ds and
-  loaded length ∫f_p ds (the history's ``network_length`` and
-  ``nf_loaded_length`` columns, where the scenario records them, as lines);
+  loaded length ∫f_p ds (the history's ``network_length``, ``nf_loaded_length`` and, with a
+  finite fluid, ``wet_length`` columns, where the scenario records them, as lines);
 * ``contact_modes.png``: the share of the interface length in each contact mode
   (bonded 1 − D, stick D η γ, slip D η (1 − γ), separated D (1 − η));
 * ``opening.png``: the largest opening, and the largest penetration relative to the
@@ -142,6 +142,9 @@ class Charts:
         if "nf_loaded_length" in h:
             ax.plot(self._t(h["t"]), h["nf_loaded_length"], color="C3", lw=1.6,
                     label="loaded length of the natural fracture, ∫f_p ds (history)")
+            drew = True
+        if "wet_length" in h and "fluid_volume" in h and np.isfinite(np.asarray(h["fluid_volume"], float)).all():
+            ax.plot(self._t(h["t"]), h["wet_length"], color="C4", lw=1.6, label="wet length: the fluid's reach (history)")
             drew = True
         if c:
             ct = self._t(c["t"])
