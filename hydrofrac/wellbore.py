@@ -16,6 +16,7 @@ from typing import Optional, Sequence, Tuple
 import numpy as np
 from mpi4py import MPI
 
+from .adapt import Adapt
 from .boundary import Absorbing, PiecewiseLinear, Traction
 from .hydraulics import HydraulicParams
 from .growth import BRANCH_SPEED
@@ -112,6 +113,7 @@ class Wellbore:
     growth: Optional[Growth] = None
     volume: Optional[PiecewiseLinear] = None
     cfl: Optional[float] = None
+    adapt: Optional[Adapt] = None
 
     def __post_init__(self):
         if not isinstance(self.pressure, PiecewiseLinear):
@@ -153,15 +155,17 @@ def network_of(desc: Wellbore, paths=None, path_tags=None) -> CrackNetwork:
 
 
 def build(desc: Wellbore, comm=MPI.COMM_WORLD, paths=None, path_tags=None, out=None, previous=None,
-          patch_radius=None) -> Problem:
+          patch_radius=None, refine=()) -> Problem:
     """Mesh, solver, interface, hydraulics and network of ``desc`` (with ``paths``/``path_tags``
     in place of the description's paths: the grown ones).  The network is made first; the
     hydraulic sources are its perforations.  ``previous`` (the last problem's
     ``problem.fracture_mesh``) and ``patch_radius`` [m]: remesh only a patch around the new
-    segments (:func:`hydrofrac.meshes.fractures.fracture_mesh`)."""
+    segments (:func:`hydrofrac.meshes.fractures.fracture_mesh`); ``refine``:
+    :class:`~hydrofrac.meshes.fractures.Refinement` objects (adaptive meshes)."""
     network = network_of(desc, paths, path_tags)
     # Gmsh meshes the network's lines (or a patch of the previous mesh around the new ones)
-    fm = fracture_mesh(comm, desc.domain, network=network, out=out, previous=previous, patch_radius=patch_radius)
+    fm = fracture_mesh(comm, desc.domain, network=network, out=out, previous=previous, patch_radius=patch_radius,
+                       refine=refine)
     sigma0 = -desc.p0 * np.eye(2)
     cracks = ([Crack(t, friction=0.0, damage=1.0, opening=p.width) for t, p in zip(fm.perforations, desc.perforations)]
               + [Crack(t, friction=f.friction, damage=1.0, tau=f.tau) for t, f in zip(fm.naturals, desc.fractures)]
@@ -182,6 +186,13 @@ def setup(desc: Wellbore, comm=MPI.COMM_WORLD, record=None):
     """(problem, growth driver or None) of ``desc``.  With ``desc.growth`` the cracks grow
     freely from the perforation tips: the driver builds the first problem (no paths yet)
     and every later one; ``record`` is its ``growth.json``."""
+    if desc.adapt is not None:
+        if desc.growth is not None:
+            raise ValueError("adaptive meshes (adapt) work on pre-meshed paths only: free growth remeshes "
+                             "with its own size law; drop adapt or growth")
+        from .adapt import AdaptDriver
+        driver = AdaptDriver(lambda refine: build(desc, comm, refine=refine), desc.adapt)
+        return driver.problem, driver
     if desc.growth is None:
         return build(desc, comm), None
     driver = growth_driver(desc, comm)

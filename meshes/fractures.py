@@ -11,7 +11,9 @@ a crack with its friction, initial damage and opening:
 
 Mesh size: ``h_crack`` along the cracks (finer, ``h_tip``, within ``tip_radius``
 of crack tips), growing to ``h_far`` over ``grading`` metres (Gmsh Distance +
-Threshold size fields).  The outer boundary is one facet tag (``OUTER``),
+Threshold size fields).  Each :class:`Refinement` (points, a size and a radius; the adaptive
+meshes of :mod:`hydrofrac.adapt`) adds a field: its size within its radius of the points,
+growing to ``h_far`` over the same ``grading``; the mesh takes the smallest of the fields.  The outer boundary is one facet tag (``OUTER``),
 absorbing in the scenarios; the wellbore wall is ``WELLBORE``.
 
 Tags (module constants): cells ``ROCK`` = 1; facets ``WELLBORE`` = 1,
@@ -72,6 +74,22 @@ class Domain:
     tip_radius: float = 0.2
     h_far: float = 0.8
     grading: float = 2.0
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """Where the mesh must be finer than the crack law: ``h`` [m] within ``radius`` [m] of
+    ``points`` (k, 2), graded to the domain's ``h_far`` over its ``grading`` (Gmsh Distance +
+    Threshold, as for the cracks)."""
+
+    points: Tuple[Tuple[float, float], ...]
+    h: float
+    radius: float
+
+    def __post_init__(self):
+        if not (self.h > 0 and self.radius >= 0):
+            raise ValueError(f"a refinement needs h > 0 and radius >= 0 m; got h = {self.h}, radius = {self.radius}")
+        object.__setattr__(self, "points", tuple((float(x), float(y)) for x, y in self.points))
 
 
 @dataclass
@@ -247,7 +265,8 @@ def check_geometry(domain: Domain, perforations: Sequence[Perforation] = (), fra
 def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perforation] = (),
                   fractures: Sequence[Fracture] = (), paths: Sequence[np.ndarray] = (),
                   out=None, verbose=False, path_tags: Optional[Sequence[int]] = None, network=None,
-                  previous: Optional[FractureMesh] = None, patch_radius: Optional[float] = None) -> FractureMesh:
+                  previous: Optional[FractureMesh] = None, patch_radius: Optional[float] = None,
+                  refine: Sequence[Refinement] = ()) -> FractureMesh:
     """Mesh a box with a wellbore, perforations, natural fractures and potential paths.
 
     ``paths`` are polylines (k, 2); every line is validated before Gmsh runs.  ``path_tags``
@@ -260,7 +279,13 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
     only the triangles within ``patch_radius`` of the new crack segments' ends and keep the
     rest of ``previous`` as it is (:mod:`hydrofrac.meshes.patch`); where that cannot be done,
     mesh the whole domain and say why in ``fallback``.
+
+    ``refine`` (:class:`Refinement` objects): finer still near their points (a full remesh only).
     """
+    refine = [r for r in refine if len(r.points)]
+    if refine and previous is not None:
+        raise ValueError("a refinement changes the size field everywhere: mesh the whole domain "
+                         "(previous = None), not a local patch")
     if network is not None:
         lines = {c.tag: c.points for c in network.cracks}
         kinds = {c.tag: c.kind for c in network.cracks}
@@ -316,21 +341,35 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
             model.addPhysicalGroup(1, well, WELLBORE)
         # size field: fine at cracks, finer at tips, coarse far away
         mf = model.mesh.field
-        if not all_crack and not well:  # no crack and no wellbore: the far size everywhere
+        if not all_crack and not well and not refine:  # no crack, wellbore or refinement: h_far everywhere
             import gmsh
             gmsh.option.setNumber("Mesh.MeshSizeMax", domain.h_far)
             gmsh.option.setNumber("Mesh.MeshSizeMin", domain.h_far)
             return
-        dist = mf.add("Distance")
-        mf.setNumbers(dist, "CurvesList", sorted(all_crack) + well)
-        mf.setNumber(dist, "NumPointsPerCurve", 200)  # "Sampling" in Gmsh >= 4.11
-        thr = mf.add("Threshold")
-        mf.setNumber(thr, "InField", dist)
-        mf.setNumber(thr, "SizeMin", domain.h_crack)
-        mf.setNumber(thr, "SizeMax", domain.h_far)
-        mf.setNumber(thr, "DistMin", domain.h_crack)
-        mf.setNumber(thr, "DistMax", domain.grading)
-        fields = [thr]
+        fields = []
+        if all_crack or well:
+            dist = mf.add("Distance")
+            mf.setNumbers(dist, "CurvesList", sorted(all_crack) + well)
+            mf.setNumber(dist, "NumPointsPerCurve", 200)  # "Sampling" in Gmsh >= 4.11
+            thr = mf.add("Threshold")
+            mf.setNumber(thr, "InField", dist)
+            mf.setNumber(thr, "SizeMin", domain.h_crack)
+            mf.setNumber(thr, "SizeMax", domain.h_far)
+            mf.setNumber(thr, "DistMin", domain.h_crack)
+            mf.setNumber(thr, "DistMax", domain.grading)
+            fields.append(thr)
+        for ref in refine:  # free points (not embedded): they only feed the Distance field
+            pts = [occ.addPoint(x, y, 0) for x, y in ref.points]
+            occ.synchronize()
+            dref = mf.add("Distance")
+            mf.setNumbers(dref, "PointsList", pts)
+            tref = mf.add("Threshold")
+            mf.setNumber(tref, "InField", dref)
+            mf.setNumber(tref, "SizeMin", ref.h)
+            mf.setNumber(tref, "SizeMax", domain.h_far)
+            mf.setNumber(tref, "DistMin", ref.radius)
+            mf.setNumber(tref, "DistMax", ref.radius + domain.grading)
+            fields.append(tref)
         if domain.h_tip is not None and tips:
             pts = [occ.addPoint(x, y, 0) for x, y in tips]
             occ.synchronize()

@@ -1,0 +1,351 @@
+"""Meshes that follow the solution: refined where it changes, coarsened where it has settled.
+
+The indicator and the rule are in docs/model.md, "Adaptive meshes".  In short, every
+``check_every`` steps :class:`AdaptDriver` flags
+
+* the bulk cells whose DG inter-element jump of (sigma, Z v), relative to ``stress_scale``,
+  exceeds ``tol`` (:func:`jump_indicator`; crack facets, where a jump is the physics, are left
+  out).  Each gets the size that equidistributes the indicator (:func:`size_levels`), rounded
+  to a level h_fine 2^k;
+* the crack points in a process zone, where the contact mode or the load changes: damage or
+  pressure factor strictly between ``band`` and 1 - ``band`` (:func:`crack_process_points`).
+  They are level 0 (h_fine within ``radius``), and stay so: a crack keeps its fine facets
+  where it has been a process zone, because its state is history.
+
+The levels are Gmsh size fields beside the scene's own law
+(:class:`hydrofrac.meshes.fractures.Refinement`).  The driver remeshes the whole domain when a
+crack process point lies in a coarse cell or more than ``refine_fraction`` of the cells are
+coarser than ``refine_ratio`` times their target (refinement), or when more than
+``coarsen_fraction`` of the cells a bulk level made fine would now be twice as large
+(coarsening), and transfers fields and interface state as a crack extension does
+(:mod:`hydrofrac.transfer`).  It is a ``remesh`` hook of :func:`hydrofrac.run.run`, with
+checkpoints: the levels and the crack history are its state, and a restart meshes them again.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+import numpy as np
+import ufl
+from mpi4py import MPI
+
+from . import compat
+
+
+@dataclass(frozen=True)
+class Adapt:
+    """Parameters of adaptive meshes (docs/model.md, "Adaptive meshes").
+
+    h_fine : size where the indicator flags [m]
+    radius : the fine zone around each flagged point [m]
+    stress_scale : the scene's stress scale [Pa] (e.g. its peak load): jumps are relative to it
+    tol : the indicator's threshold (relative jump)
+    band : crack points with D or f_p in (band, 1 - band) are a process zone
+    check_every : steps between checks
+    refine_ratio : a cell coarser than this times its target is under-resolved
+    refine_fraction : a remesh when more than this share of the cells is under-resolved (any
+        cell at a crack process point is enough)
+    coarsen_fraction : a remesh when more than this share of the cells the refinement made
+        fine would now be at least twice as large
+    """
+
+    h_fine: float
+    radius: float
+    stress_scale: float
+    tol: float = 0.02
+    band: float = 0.02
+    check_every: int = 20
+    refine_ratio: float = 1.6
+    refine_fraction: float = 0.01
+    coarsen_fraction: float = 0.3
+
+    def __post_init__(self):
+        for name in ("h_fine", "radius", "stress_scale", "tol"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"adapt: {name} must be > 0; got {getattr(self, name)}")
+        if not 0 < self.band < 0.5:
+            raise ValueError(f"adapt: band must be in (0, 0.5); got {self.band}")
+        if int(self.check_every) < 1:
+            raise ValueError(f"adapt: check_every must be >= 1 step; got {self.check_every}")
+        if not self.refine_ratio > 1:
+            raise ValueError(f"adapt: refine_ratio must be > 1; got {self.refine_ratio}")
+        if not 0 <= self.refine_fraction < 1:
+            raise ValueError(f"adapt: refine_fraction must be in [0, 1); got {self.refine_fraction}")
+        if not 0 < self.coarsen_fraction < 1:
+            raise ValueError(f"adapt: coarsen_fraction must be in (0, 1); got {self.coarsen_fraction}")
+
+
+class _JumpForm:
+    """The compiled indicator forms of one solver (FFCx; the JIT cache keeps the code)."""
+
+    def __init__(self, solver):
+        from .forms import elastodynamics as ef
+        mesh = solver.mesh
+        tdim = mesh.topology.dim
+        nfac = compat.num_facets_with_ghosts(mesh)
+        off, _ = compat.connectivity(mesh, tdim - 1, tdim)
+        interior = np.diff(off)[:nfac] == 2
+        interior[np.asarray(solver.crack_facets, dtype=np.int64)] = False
+        facets = np.flatnonzero(interior).astype(np.int32)
+        self.tags = compat.meshtags(mesh, tdim - 1, facets, np.ones(facets.size, dtype=np.int32))
+        self.Q = compat.dg_space(mesh, 0)
+        self.u = compat.function(solver.V)
+        self.scale = compat.constant(mesh, 1.0)  # Z_ref / sigma_ref, set per call
+        self.inv_s = compat.constant(mesh, 1.0)  # 1 / sigma_ref
+        q = ufl.TestFunction(self.Q)
+        v, sig = ef.fields(self.u)
+        dS = compat.measure("dS", mesh, subdomain_data=self.tags)
+        js = ufl.jump(sig) * self.inv_s
+        jv = ufl.jump(v) * self.scale
+        self.num = compat.form(ufl.avg(q) * (ufl.inner(js, js) + ufl.inner(jv, jv)) * dS(1))
+        self.den = compat.form(ufl.avg(q) * dS(1))
+        self.nloc = compat.num_cells_local(mesh)
+
+
+def jump_indicator(solver, stress_scale: float, cache: Optional[dict] = None) -> np.ndarray:
+    """Per owned cell: the root mean square, over its interior non-crack facets, of the
+    inter-element jump of (sigma, Z v), divided by ``stress_scale`` (Z = the largest rho c_d
+    of the solver's materials).  Zero for a field continuous across the facets."""
+    key = id(solver)
+    jf = None if cache is None else cache.get(key)
+    if jf is None:
+        jf = _JumpForm(solver)
+        if cache is not None:
+            cache.clear()
+            cache[key] = jf
+    z_ref = float(np.max(solver.rho_cell * solver.cd_cell)) if solver.rho_cell.size else 0.0
+    z_ref = solver.comm.allreduce(z_ref, op=MPI.MAX)
+    jf.inv_s.value = 1.0 / stress_scale
+    jf.scale.value = z_ref / stress_scale
+    arr = compat.function_array(jf.u)
+    arr[:] = compat.function_array_of_vec(solver.x)
+    num = compat.assemble_vector(jf.num)
+    den = compat.assemble_vector(jf.den)
+    with num.localForm() as a, den.localForm() as b:
+        n, d = a.array_r[:jf.nloc].copy(), b.array_r[:jf.nloc].copy()
+    num.destroy()
+    den.destroy()
+    out = np.zeros(jf.nloc)
+    ok = d > 0
+    out[ok] = np.sqrt(np.maximum(n[ok], 0.0) / d[ok])
+    return out
+
+
+def crack_process_points(problem, band: float) -> np.ndarray:
+    """(k, 2) crack Gauss points (of the owned crack facets) whose damage D or pressure factor f_p lies strictly
+    inside (band, 1 - band): a contact mode or the hydraulic load is changing there."""
+    iface = problem.interface
+    if iface is None or iface.facets.size == 0:
+        return np.zeros((0, 2))
+    D = iface.state[0]
+    active = (D > band) & (D < 1 - band)
+    hyd = problem.hydraulics
+    if hyd is not None:
+        fp = hyd.fp_q
+        active |= (fp > band) & (fp < 1 - band)
+    return iface.points[active].reshape(-1, 2)
+
+
+def cell_sizes(solver) -> np.ndarray:
+    """Per owned cell: the edge of the equilateral triangle of the same area [m]."""
+    g = solver.geometry
+    nloc = compat.num_cells_local(solver.mesh)
+    area = 0.5 * np.abs(np.linalg.det(g.J[:nloc]))
+    return np.sqrt(4 * area / np.sqrt(3))
+
+
+def thin(points: np.ndarray, spacing: float) -> np.ndarray:
+    """One point per square of side ``spacing`` (the first met, in a sorted order): the size
+    field needs the flagged region, not every Gauss point."""
+    if points.shape[0] == 0:
+        return points.reshape(0, 2)
+    keys = np.floor(points / spacing).astype(np.int64)
+    _, first = np.unique(keys, axis=0, return_index=True)
+    return points[np.sort(first)]
+
+
+def size_levels(h_fine: float, h_cell: np.ndarray, eta: np.ndarray, tol: float, degree: int) -> np.ndarray:
+    """Per flagged cell (eta > tol): the level k of its target size h_fine 2^k.  The target
+    equidistributes the indicator, h_K (tol / eta_K)^(1/(p+1)) (a DG jump falls as h^(p+1) on
+    a smooth field), rounded down to a power of two times h_fine, and never below h_fine."""
+    target = h_cell * (tol / eta) ** (1.0 / (degree + 1))
+    return np.maximum(np.floor(np.log2(np.maximum(target, h_fine) / h_fine) + 1e-12), 0).astype(int)
+
+
+class AdaptDriver:
+    """Adaptive remeshing as a ``remesh`` hook of :func:`hydrofrac.run.run` (module docstring).
+
+    ``build(refinements) -> Problem`` meshes the scene with the given
+    :class:`hydrofrac.meshes.fractures.Refinement` objects (none: the scene's own mesh) and
+    builds its problem.  The refinement is a set of levels: level 0 (h_fine, ``radius``) holds
+    the crack process points and the bulk cells that need h_fine; level k (h_fine 2^k, radius
+    h_fine 2^k) the bulk cells whose target size is that.
+    """
+
+    def __init__(self, build: Callable, params: Adapt, levels=None):
+        self.build, self.params = build, params
+        self.levels = {} if levels is None else {int(k): np.asarray(v, float).reshape(-1, 2) for k, v in levels.items()}
+        self.count = 0
+        self.refines = self.coarsens = 0
+        self.checks = 0
+        self.indicator_s = 0.0
+        self.meshes = []  # (t, cells, dt)
+        self._cache = {}
+        # old meshes live as long as the driver: the run's writers hold the first mesh's
+        # communicator, and freeing a DOLFINx 0.5 mesh mid-run is unsafe (growth.GrowthDriver)
+        self._old_meshes = []
+        self._zone = np.zeros((0, 2))  # the crack process points of the last check
+        self.crack_history = np.zeros((0, 2))  # every crack process point seen so far
+        self.last_criterion_s = 0.0
+        self.problem = self._build()
+        self._log_mesh()
+
+    def _size(self, k):
+        return self.params.h_fine * 2.0 ** k
+
+    def _radius(self, k):
+        return self.params.radius if k == 0 else self._size(k)
+
+    def refinements(self, levels=None):
+        from .meshes.fractures import Refinement
+        levels = self.levels if levels is None else levels
+        return [Refinement(tuple(map(tuple, pts)), self._size(k), self._radius(k))
+                for k, pts in sorted(levels.items()) if pts.shape[0]]
+
+    def _build(self):
+        problem = self.build(self.refinements())
+        problem.growth = self  # run() remeshes a problem through its hook
+        return problem
+
+    def _log_mesh(self):
+        s = self.problem.solver
+        self.meshes.append((float(s.t), int(s.num_cells), float(s.dt)))
+
+    def flagged(self, problem) -> dict:
+        """{level: points (k, 2)}, the same on every rank (docstring of the class)."""
+        solver, p = problem.solver, self.params
+        eta = jump_indicator(solver, p.stress_scale, self._cache)
+        g = solver.geometry
+        nloc = eta.size
+        centroids = g.x0[:nloc] + g.J[:nloc] @ np.array([1 / 3, 1 / 3])
+        on = eta > p.tol
+        lev = size_levels(p.h_fine, cell_sizes(solver)[on], eta[on], p.tol, solver.degree)
+        zone = crack_process_points(problem, p.band)
+        self._zone = thin(np.vstack(solver.comm.allgather(thin(zone, 0.5 * p.h_fine))), 0.5 * p.h_fine)
+        # a crack stays fine where it has been a process zone: its damage and opening are
+        # history, and a coarser facet would average them (a path's mean D below the network's
+        # threshold disconnected a loaded natural fracture in the study; docs/model.md)
+        self.crack_history = thin(np.vstack([self.crack_history, self._zone]), 0.5 * p.h_fine)
+        local = {0: self.crack_history if solver.comm.rank == 0 else np.zeros((0, 2))}
+        for k in np.unique(lev):
+            pts = centroids[on][lev == k]
+            local[int(k)] = pts if int(k) not in local else np.vstack([local[int(k)], pts])
+        keys = sorted(set(k for d in solver.comm.allgather(sorted(local)) for k in d))
+        out = {}
+        for k in keys:
+            mine = thin(local.get(k, np.zeros((0, 2))), 0.5 * self._size(k))
+            pts = thin(np.vstack(solver.comm.allgather(mine)), 0.5 * self._size(k))
+            if pts.shape[0]:
+                out[k] = pts
+        return out
+
+    def target(self, levels, x) -> np.ndarray:
+        """The refinement's size at points ``x`` (n, 2): the smallest level size whose points
+        lie within its radius (where Gmsh's Threshold gives that size); inf where no level
+        reaches (the scene's law)."""
+        from scipy.spatial import cKDTree
+        out = np.full(x.shape[0], np.inf)
+        for k, pts in levels.items():
+            if pts.shape[0] and x.shape[0]:
+                d = cKDTree(pts).query(x)[0]
+                near = d <= self._radius(k)
+                out[near] = np.minimum(out[near], self._size(k))
+        return out
+
+    def decide(self, problem, levels):
+        """("refine" | "coarsen" | None) for the flagged ``levels`` (collective): refine when a
+        crack process point lies in a cell coarser than ``refine_ratio`` h_fine, or more than
+        ``refine_fraction`` of the cells are coarser than ``refine_ratio`` times their new
+        target; coarsen when more than ``coarsen_fraction`` of the cells the current
+        refinement made fine would now be at least twice as large."""
+        solver, p = problem.solver, self.params
+        g = solver.geometry
+        nloc = compat.num_cells_local(solver.mesh)
+        centroids = g.x0[:nloc] + g.J[:nloc] @ np.array([1 / 3, 1 / 3])
+        h = cell_sizes(solver)
+        new = self.target(levels, centroids)
+        old = self.target(self.levels, centroids)
+        coarse = int(np.sum(h > p.refine_ratio * new))
+        zone = self.target({0: self._zone}, centroids) if self._zone.shape[0] else np.full(nloc, np.inf)
+        zone_coarse = int(np.sum(h > p.refine_ratio * zone))
+        made = np.isfinite(old)
+        idle = int(np.sum(made & (new >= 2 * old)))
+        coarse, zone_coarse, idle, n_made, n = solver.comm.allreduce(
+            np.array([coarse, zone_coarse, idle, int(made.sum()), nloc]), op=MPI.SUM)
+        if zone_coarse > 0 or coarse > p.refine_fraction * n:
+            return "refine"
+        if n_made and idle > p.coarsen_fraction * n_made:
+            return "coarsen"
+        return None
+
+    def __call__(self, problem):
+        solver, p = problem.solver, self.params
+        self.last_criterion_s = 0.0
+        if solver.step_count % int(p.check_every):
+            return None
+        t0 = time.perf_counter()
+        levels = self.flagged(problem)
+        why = self.decide(problem, levels)
+        self.checks += 1
+        spent = time.perf_counter() - t0
+        self.indicator_s += spent
+        solver.timers.add("adapt indicator", spent)
+        self.last_criterion_s = spent
+        if why is None:
+            return None
+        from .transfer import continue_run, transfer_fields, transfer_interface
+        before = self.levels
+        self.levels = levels
+        try:
+            new = self._build()
+        except Exception:
+            self.levels = before
+            raise
+        self._old_meshes.append(solver.mesh)
+        transfer_fields(solver, new.solver)
+        continue_run(solver, new.solver)
+        if problem.interface is not None and new.interface is not None:
+            transfer_interface(problem.interface, new.interface)
+        new.after_restore()
+        self.problem = new
+        self.count += 1
+        if why == "refine":
+            self.refines += 1
+        else:
+            self.coarsens += 1
+        self._log_mesh()
+        return new
+
+    # ------------------------------------------------------------ checkpoints and report
+    def checkpoint_state(self):
+        return json.dumps({"levels": {str(k): v.tolist() for k, v in self.levels.items()},
+                           "crack_history": self.crack_history.tolist(), "count": self.count,
+                           "refines": self.refines, "coarsens": self.coarsens, "checks": self.checks,
+                           "meshes": self.meshes})
+
+    def restart(self, text):
+        st = json.loads(text)
+        self.levels = {int(k): np.asarray(v, float).reshape(-1, 2) for k, v in st["levels"].items()}
+        self.crack_history = np.asarray(st["crack_history"], float).reshape(-1, 2)
+        self.count, self.refines, self.coarsens, self.checks = st["count"], st["refines"], st["coarsens"], st["checks"]
+        self.meshes = [tuple(m) for m in st["meshes"]]
+        self.problem = self._build()
+        return self.problem
+
+    def report(self):
+        cells = [m[1] for m in self.meshes]
+        return {"adaptive_remeshes": self.count, "adaptive_refines": self.refines,
+                "adaptive_coarsens": self.coarsens, "adapt_checks": self.checks, "cells_min": min(cells), "cells_max": max(cells)}
