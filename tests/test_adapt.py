@@ -165,3 +165,14 @@ def test_an_adaptive_run_restarted_ends_as_the_straight_one(tmp_path, run_python
     for k in ("kinetic", "strain", "work_in"):
         assert split["energy"][k] == pytest.approx(straight["energy"][k], rel=1e-12), k
     assert straight["accuracy"]["adaptive_remeshes"] >= 2
+
+
+def test_the_intersection_runs_on_adaptive_meshes(tmp_path):
+    """``intersection.py --premeshed --adapt H`` runs end to end: the mesh refines and coarsens
+    as the pressure front moves, and the front still reaches the natural fracture."""
+    from hydrofrac.loader import scenario
+    summ = scenario("intersection").main(["--quick", "--premeshed", "--adapt", "0.06", "--t-end", "6e-4",
+                                          "--out", str(tmp_path / "run")])
+    acc = summ["accuracy"]
+    assert acc["adaptive_refines"] >= 1 and acc["cells_max"] > acc["cells_min"]
+    assert 0 < acc["intersection_time"] < 6e-4

@@ -139,6 +139,9 @@ def test_run_end_time_must_be_positive():
     ("refracture", ["--growth-max-radius", "-1"], "--growth-max-radius"),
     ("refracture", ["--pump-rate", "0"], "--pump-rate"),
     ("refracture", ["--pump-rate", "nan"], "--pump-rate"),
+    ("intersection", ["--adapt", "0.03"], "--premeshed"),
+    ("intersection", ["--premeshed", "--adapt", "0"], "--adapt"),
+    ("intersection", ["--premeshed", "--adapt", "0.03", "--adapt-tol", "-1"], "--adapt-tol"),
 ])
 def test_growth_options_rejected_before_meshing(name, args, word, capsys, tmp_path):
     """Bad growth or mesh options stop a wellbore scenario at once (exit 2) with the option
