@@ -158,13 +158,13 @@ def cell_sizes(solver) -> np.ndarray:
 
 
 def thin(points: np.ndarray, spacing: float) -> np.ndarray:
-    """One point per square of side ``spacing`` (the first met, in a sorted order): the size
-    field needs the flagged region, not every Gauss point."""
+    """The centres of the squares of side ``spacing`` that hold a point, sorted: the size field
+    needs the flagged region, not every Gauss point, and the centres do not depend on the
+    points' order (so not on the partition)."""
     if points.shape[0] == 0:
         return points.reshape(0, 2)
-    keys = np.floor(points / spacing).astype(np.int64)
-    _, first = np.unique(keys, axis=0, return_index=True)
-    return points[np.sort(first)]
+    keys = np.unique(np.floor(points / spacing).astype(np.int64), axis=0)
+    return (keys + 0.5) * spacing
 
 
 def size_levels(h_fine: float, h_cell: np.ndarray, eta: np.ndarray, tol: float, degree: int) -> np.ndarray:
@@ -175,33 +175,24 @@ def size_levels(h_fine: float, h_cell: np.ndarray, eta: np.ndarray, tol: float, 
     return np.maximum(np.floor(np.log2(np.maximum(target, h_fine) / h_fine) + 1e-12), 0).astype(int)
 
 
-class AdaptDriver:
-    """Adaptive remeshing as a ``remesh`` hook of :func:`hydrofrac.run.run` (module docstring).
+class Adaptivity:
+    """The indicator, the size levels and the remesh rule of adaptive meshes (module docstring),
+    without a mesh builder: :class:`AdaptDriver` remeshes a fixed geometry with it, and
+    :class:`hydrofrac.growth.GrowthDriver` a growing one.
 
-    ``build(refinements) -> Problem`` meshes the scene with the given
-    :class:`hydrofrac.meshes.fractures.Refinement` objects (none: the scene's own mesh) and
-    builds its problem.  The refinement is a set of levels: level 0 (h_fine, ``radius``) holds
-    the crack process points and the bulk cells that need h_fine; level k (h_fine 2^k, radius
-    h_fine 2^k) the bulk cells whose target size is that.
+    The levels: level 0 (h_fine, ``radius``) holds the crack process points and the bulk cells
+    that need h_fine; level k (h_fine 2^k, radius h_fine 2^k) the bulk cells whose target size
+    is that.
     """
 
-    def __init__(self, build: Callable, params: Adapt, levels=None):
-        self.build, self.params = build, params
-        self.levels = {} if levels is None else {int(k): np.asarray(v, float).reshape(-1, 2) for k, v in levels.items()}
-        self.count = 0
-        self.refines = self.coarsens = 0
-        self.checks = 0
-        self.indicator_s = 0.0
-        self.meshes = []  # (t, cells, dt)
-        self._cache = {}
-        # old meshes live as long as the driver: the run's writers hold the first mesh's
-        # communicator, and freeing a DOLFINx 0.5 mesh mid-run is unsafe (growth.GrowthDriver)
-        self._old_meshes = []
-        self._zone = np.zeros((0, 2))  # the crack process points of the last check
+    def __init__(self, params: Adapt):
+        self.params = params
+        self.levels = {}
         self.crack_history = np.zeros((0, 2))  # every crack process point seen so far
-        self.last_criterion_s = 0.0
-        self.problem = self._build()
-        self._log_mesh()
+        self._zone = np.zeros((0, 2))  # the crack process points of the last check
+        self.refines = self.coarsens = self.checks = 0
+        self.indicator_s = 0.0
+        self._cache = {}
 
     def _size(self, k):
         return self.params.h_fine * 2.0 ** k
@@ -210,19 +201,11 @@ class AdaptDriver:
         return self.params.radius if k == 0 else self._size(k)
 
     def refinements(self, levels=None):
+        """The levels as :class:`hydrofrac.meshes.fractures.Refinement` size fields."""
         from .meshes.fractures import Refinement
         levels = self.levels if levels is None else levels
         return [Refinement(tuple(map(tuple, pts)), self._size(k), self._radius(k))
                 for k, pts in sorted(levels.items()) if pts.shape[0]]
-
-    def _build(self):
-        problem = self.build(self.refinements())
-        problem.growth = self  # run() remeshes a problem through its hook
-        return problem
-
-    def _log_mesh(self):
-        s = self.problem.solver
-        self.meshes.append((float(s.t), int(s.num_cells), float(s.dt)))
 
     def flagged(self, problem) -> dict:
         """{level: points (k, 2)}, the same on every rank (docstring of the class)."""
@@ -291,61 +274,137 @@ class AdaptDriver:
             return "coarsen"
         return None
 
-    def __call__(self, problem):
-        solver, p = problem.solver, self.params
-        self.last_criterion_s = 0.0
-        if solver.step_count % int(p.check_every):
-            return None
+    def due(self, solver) -> bool:
+        return solver.step_count % int(self.params.check_every) == 0
+
+    def check(self, problem):
+        """Evaluate the indicators (collective); when the mesh no longer fits them, take the new
+        levels and return why ("refine" or "coarsen"), else None.  Times itself as "adapt
+        indicator"; returns (why, seconds)."""
         t0 = time.perf_counter()
         levels = self.flagged(problem)
         why = self.decide(problem, levels)
         self.checks += 1
         spent = time.perf_counter() - t0
         self.indicator_s += spent
-        solver.timers.add("adapt indicator", spent)
-        self.last_criterion_s = spent
+        problem.solver.timers.add("adapt indicator", spent)
+        if why is not None:
+            self._before = self.levels
+            self.levels = levels
+            if why == "refine":
+                self.refines += 1
+            else:
+                self.coarsens += 1
+        return why, spent
+
+    def undo(self, why):
+        """Back to the levels before the last :meth:`check` that asked for a remesh (its build failed)."""
+        self.levels = self._before
+        if why == "refine":
+            self.refines -= 1
+        else:
+            self.coarsens -= 1
+
+    def state(self) -> dict:
+        return {"levels": {str(k): v.tolist() for k, v in self.levels.items()},
+                "crack_history": self.crack_history.tolist(), "refines": self.refines,
+                "coarsens": self.coarsens, "checks": self.checks}
+
+    def restore(self, st: dict):
+        self.levels = {int(k): np.asarray(v, float).reshape(-1, 2) for k, v in st["levels"].items()}
+        self.crack_history = np.asarray(st["crack_history"], float).reshape(-1, 2)
+        self.refines, self.coarsens, self.checks = st["refines"], st["coarsens"], st["checks"]
+
+    def report(self) -> dict:
+        return {"adaptive_refines": self.refines, "adaptive_coarsens": self.coarsens, "adapt_checks": self.checks}
+
+
+class AdaptDriver:
+    """Adaptive remeshing of a fixed geometry as a ``remesh`` hook of :func:`hydrofrac.run.run`.
+
+    ``build(refinements) -> Problem`` meshes the scene with the given
+    :class:`hydrofrac.meshes.fractures.Refinement` objects (none: the scene's own mesh) and
+    builds its problem.
+    """
+
+    def __init__(self, build: Callable, params: Adapt):
+        self.build, self.params = build, params
+        self.adapt = Adaptivity(params)
+        self.count = 0
+        self.meshes = []  # (t, cells, dt)
+        # old meshes live as long as the driver: the run's writers hold the first mesh's
+        # communicator, and freeing a DOLFINx 0.5 mesh mid-run is unsafe (growth.GrowthDriver)
+        self._old_meshes = []
+        self.last_criterion_s = 0.0
+        self.problem = self._build()
+        self._log_mesh()
+
+    @property
+    def levels(self):
+        return self.adapt.levels
+
+    @property
+    def refines(self):
+        return self.adapt.refines
+
+    @property
+    def coarsens(self):
+        return self.adapt.coarsens
+
+    def _build(self):
+        problem = self.build(self.adapt.refinements())
+        problem.growth = self  # run() remeshes a problem through its hook
+        return problem
+
+    def _log_mesh(self):
+        s = self.problem.solver
+        self.meshes.append((float(s.t), int(s.num_cells), float(s.dt)))
+
+    def __call__(self, problem):
+        solver = problem.solver
+        self.last_criterion_s = 0.0
+        if not self.adapt.due(solver):
+            return None
+        why, self.last_criterion_s = self.adapt.check(problem)
         if why is None:
             return None
-        from .transfer import continue_run, transfer_fields, transfer_interface
-        before = self.levels
-        self.levels = levels
         try:
             new = self._build()
         except Exception:
-            self.levels = before
+            self.adapt.undo(why)
             raise
         self._old_meshes.append(solver.mesh)
-        transfer_fields(solver, new.solver)
-        continue_run(solver, new.solver)
-        if problem.interface is not None and new.interface is not None:
-            transfer_interface(problem.interface, new.interface)
-        new.after_restore()
+        carry_over(problem, new)
         self.problem = new
         self.count += 1
-        if why == "refine":
-            self.refines += 1
-        else:
-            self.coarsens += 1
         self._log_mesh()
         return new
 
     # ------------------------------------------------------------ checkpoints and report
     def checkpoint_state(self):
-        return json.dumps({"levels": {str(k): v.tolist() for k, v in self.levels.items()},
-                           "crack_history": self.crack_history.tolist(), "count": self.count,
-                           "refines": self.refines, "coarsens": self.coarsens, "checks": self.checks,
-                           "meshes": self.meshes})
+        return json.dumps({"adapt": self.adapt.state(), "count": self.count, "meshes": self.meshes})
 
     def restart(self, text):
         st = json.loads(text)
-        self.levels = {int(k): np.asarray(v, float).reshape(-1, 2) for k, v in st["levels"].items()}
-        self.crack_history = np.asarray(st["crack_history"], float).reshape(-1, 2)
-        self.count, self.refines, self.coarsens, self.checks = st["count"], st["refines"], st["coarsens"], st["checks"]
+        self.adapt.restore(st["adapt"])
+        self.count = st["count"]
         self.meshes = [tuple(m) for m in st["meshes"]]
+        self._old_meshes.append(self.problem.solver.mesh)
         self.problem = self._build()
         return self.problem
 
     def report(self):
         cells = [m[1] for m in self.meshes]
-        return {"adaptive_remeshes": self.count, "adaptive_refines": self.refines,
-                "adaptive_coarsens": self.coarsens, "adapt_checks": self.checks, "cells_min": min(cells), "cells_max": max(cells)}
+        return {"adaptive_remeshes": self.count, **self.adapt.report(), "cells_min": min(cells),
+                "cells_max": max(cells)}
+
+
+def carry_over(old, new):
+    """Fields, interface state and the derived hydraulic state from problem ``old`` to ``new``
+    (a remesh: :mod:`hydrofrac.transfer`)."""
+    from .transfer import continue_run, transfer_fields, transfer_interface
+    transfer_fields(old.solver, new.solver)
+    continue_run(old.solver, new.solver)
+    if old.interface is not None and new.interface is not None:
+        transfer_interface(old.interface, new.interface)
+    new.after_restore()

@@ -528,13 +528,17 @@ class GrowthDriver:
 
     def __init__(self, build, tips, params: GrowthParams, da: float, threshold: float, tags,
                  check_every: int = 10, ready_damage: float = 0.5, inside=None, domain_size=None,
-                 obstacles=(), record=None, max_speed=None, nucleation: "NucleationParams | None" = None):
+                 obstacles=(), record=None, max_speed=None, nucleation: "NucleationParams | None" = None,
+                 adapt=None):
         if not da > 0:
             raise ValueError(f"growth increment da must be > 0 m; got {da}")
         if max_speed is not None and not max_speed > 0:
             raise ValueError(f"growth max_speed must be > 0 m/s (or None: no limit); got {max_speed}")
         self.max_speed = max_speed
         self.nucleation = nucleation
+        # adaptive meshes (hydrofrac.adapt.Adaptivity, whose levels ``build`` meshes with): its
+        # checks may remesh an unchanged geometry; ``adapt_count`` counts those remeshes
+        self.adapt, self.adapt_count = adapt, 0
         self.nucleations = []  # (t, centre, crack angle [deg], s̆)
         if domain_size is not None and not da < domain_size:
             raise ValueError(f"growth increment da = {da} m is not smaller than the domain ({domain_size} m); "
@@ -677,8 +681,9 @@ class GrowthDriver:
     def __call__(self, problem):
         solver = problem.solver
         self.last_criterion_s = 0.0
+        adapt_due = self.adapt is not None and self.adapt.due(solver)
         if solver.step_count % check_interval(solver, self.check_every):
-            return None
+            return self._adapt_remesh(problem) if adapt_due else None
         import time as _time
         t_crit = _time.perf_counter()
         extended = [i for i, p in enumerate(self.paths) if len(p) >= 2]
@@ -736,13 +741,17 @@ class GrowthDriver:
         solver.timers.add("growth criterion", crit)
         self.last_criterion_s = crit + (_time.perf_counter() - t_nuc)
         if not grown:
-            return None
+            return self._adapt_remesh(problem) if adapt_due else None
         from .transfer import continue_run, transfer_fields, transfer_interface
+        if adapt_due:  # the new mesh takes the indicators' levels too
+            _, spent = self.adapt.check(problem)
+            self.last_criterion_s += spent
         try:
             new = self._build()
         except Exception:
             # keep the driver at the last good geometry (the one a checkpoint of the last good
-            # state belongs to); the failing geometry is in the exception's message and files
+            # state belongs to; with adaptive meshes, the levels before this check); the failing
+            # geometry is in the exception's message and files
             self.restore_state(before_state)
             raise
         self._old_meshes.append(solver.mesh)
@@ -753,6 +762,27 @@ class GrowthDriver:
         new.after_restore()
         self.problem = new
         self.count += 1
+        self._log_mesh()
+        self.write()
+        return new
+
+    def _adapt_remesh(self, problem):
+        """An adaptive check with no crack extension: remesh the same geometry when the
+        indicators ask for it (:class:`hydrofrac.adapt.Adaptivity`); the new problem or None."""
+        from .adapt import carry_over
+        why, spent = self.adapt.check(problem)
+        self.last_criterion_s += spent
+        if why is None:
+            return None
+        try:
+            new = self._build()
+        except Exception:
+            self.adapt.undo(why)
+            raise
+        self._old_meshes.append(problem.solver.mesh)
+        carry_over(problem, new)
+        self.problem = new
+        self.adapt_count += 1
         self._log_mesh()
         self.write()
         return new
@@ -944,7 +974,8 @@ class GrowthDriver:
                 "grown_length": sum(float(np.linalg.norm(np.diff(np.array(p), axis=0), axis=1).sum())
                                     for p in self.paths),
                 "tip_speed_max": max(speeds) if speeds else 0.0,
-                **self.remesh_kinds()}
+                **self.remesh_kinds(),
+                **({"adaptive_remeshes": self.adapt_count, **self.adapt.report()} if self.adapt is not None else {})}
 
     def remesh_kinds(self):
         """With local remeshing: the remeshes made by a patch, those that fell back to the whole
@@ -972,6 +1003,7 @@ class GrowthDriver:
             "arrested": [[int(i), np.asarray(p).tolist(), np.asarray(e).tolist()] for i, (p, e) in self.arrested.items()],
             "count": self.count,
             "meshes": [list(m) for m in self.meshes],
+            "adapt": None if self.adapt is None else {**self.adapt.state(), "count": self.adapt_count},
             # a local remesh's mesh, which a full remesh of the same geometry would not give again
             "mesh": self.build.mesh_state() if with_mesh and hasattr(self.build, "mesh_state") else None},
             default=float)
@@ -995,6 +1027,9 @@ class GrowthDriver:
         self.arrested = {int(i): (np.asarray(p, float), np.asarray(e, float)) for i, p, e in d.get("arrested", [])}
         self.count = int(d["count"])
         self.meshes = [(float(t), int(n), float(dt)) for t, n, dt in d.get("meshes", [])]
+        if self.adapt is not None and d.get("adapt") is not None:
+            self.adapt.restore(d["adapt"])
+            self.adapt_count = int(d["adapt"]["count"])
 
     def restart(self, text):
         """Rebuild the mesh of a checkpoint's geometry state; returns the new problem (at its

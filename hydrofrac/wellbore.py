@@ -130,6 +130,9 @@ class Wellbore:
         object.__setattr__(self, "fractures", tuple(self.fractures))
         object.__setattr__(self, "paths", tuple(np.asarray(p, float) for p in self.paths))
         check_geometry(self.domain, self.perforations, self.fractures, self.paths)
+        if self.adapt is not None and self.growth is not None and self.growth.remesh == "patch":
+            raise ValueError("adaptive meshes change the size field everywhere, so they remesh the whole domain: "
+                             "use growth remesh 'full' (--growth-remesh full) with adapt")
 
 
 def closing_speed(desc: Wellbore) -> float:
@@ -186,10 +189,7 @@ def setup(desc: Wellbore, comm=MPI.COMM_WORLD, record=None):
     """(problem, growth driver or None) of ``desc``.  With ``desc.growth`` the cracks grow
     freely from the perforation tips: the driver builds the first problem (no paths yet)
     and every later one; ``record`` is its ``growth.json``."""
-    if desc.adapt is not None:
-        if desc.growth is not None:
-            raise ValueError("adaptive meshes (adapt) work on pre-meshed paths only: free growth remeshes "
-                             "with its own size law; drop adapt or growth")
+    if desc.adapt is not None and desc.growth is None:
         from .adapt import AdaptDriver
         driver = AdaptDriver(lambda refine: build(desc, comm, refine=refine), desc.adapt)
         return driver.problem, driver
@@ -211,7 +211,9 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
     # growth.natural_tips, both ends of every natural fracture
     start = network_of(replace(desc, paths=()))
     tips = [Tip(t.point.copy(), t.direction.copy()) for t in start.tips if t.active]
-    h = dom.h_crack
+    # the growth's length unit: the crack facet size, or with adaptive meshes the fine size
+    # (the cracks there are coarser away from their process zones and tips)
+    h = dom.h_crack if desc.adapt is None else desc.adapt.h_fine
     mx, my = dom.half_width - 2 * h, dom.half_height - 2 * h
     rmax = np.inf if g.max_radius is None else g.max_radius
     if not rmax > dom.wellbore_radius + max(pf.length for pf in perfs):
@@ -222,12 +224,17 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
     premeshed = replace(desc, paths=())
 
     last = {}  # the last problem's mesh, for a local remesh
+    adapt = None
+    if desc.adapt is not None:
+        from .adapt import Adaptivity
+        adapt = Adaptivity(desc.adapt)
 
     def rebuild(polylines, count=True):
         paths, tags = polylines
         local = g.remesh == "patch" and "fm" in last
         problem = build(premeshed, comm, paths=paths, path_tags=tags, previous=last["fm"] if local else None,
-                        patch_radius=g.patch_radius * h if local else None)
+                        patch_radius=g.patch_radius * h if local else None,
+                        refine=adapt.refinements() if adapt is not None else ())
         last["fm"] = problem.fracture_mesh
         if local and count:
             fm = problem.fracture_mesh
@@ -282,4 +289,5 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
                         inside=lambda p: (abs(p[0]) < mx and abs(p[1]) < my
                                           and dom.wellbore_radius + g.da * h < np.hypot(p[0], p[1]) < rmax),
                         obstacles=([fracture_points(nf) for nf in desc.fractures]
-                                   + [perforation_points(dom, pf) for pf in perfs]), max_speed=g.max_speed)
+                                   + [perforation_points(dom, pf) for pf in perfs]), max_speed=g.max_speed,
+                        adapt=adapt)

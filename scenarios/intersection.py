@@ -93,9 +93,10 @@ def description(regularized=True, degree=2, quick=False, x_nf=None, tau=30e-6, d
                 h_crack=None, h_far=None, growth=None, ramp=RAMP, connected=True, adapt=None,
                 adapt_tol=ADAPT_TOL) -> wellbore.Wellbore:
     """The problem as data: ``growth`` (a :class:`hydrofrac.wellbore.Growth`) grows the cracks
-    freely; None grows them along the pre-meshed potential paths.  ``adapt`` [m] (pre-meshed
-    paths only): adaptive meshes with that fine size, the cracks at twice it (``h_crack``
-    overrides), ``h_far`` 1 m reached within 0.5 m (:mod:`hydrofrac.adapt`)."""
+    freely; None grows them along the pre-meshed potential paths.  ``adapt`` [m]: adaptive
+    meshes with that fine size, the cracks at twice it (``h_crack`` overrides), ``h_far`` 1 m
+    reached within 0.5 m (:mod:`hydrofrac.adapt`); growing tips keep the fine size within
+    4 h_fine, where the criterion samples."""
     if adapt is not None:
         h_crack = h_crack or 2 * adapt
         h_far = h_far or ADAPT_H_FAR
@@ -103,6 +104,8 @@ def description(regularized=True, degree=2, quick=False, x_nf=None, tau=30e-6, d
     extra = {}
     if adapt is not None:
         dom = replace(dom, grading=ADAPT_GRADING)
+        if growth is not None:
+            dom = replace(dom, h_tip=adapt, tip_radius=4 * adapt)
         extra["adapt"] = Adapt(h_fine=adapt, radius=2 * adapt, stress_scale=P_PEAK, tol=adapt_tol)
     return wellbore.Wellbore(dom, perfs, pressure_history(rise=ramp), fractures=nfs, paths=() if growth else paths,
                              regularized=regularized, degree=degree, damage=DamageParams(tau=tau),
@@ -270,9 +273,9 @@ def main(argv=None, regularized=None):
     parser.add_argument("--h-far", type=float, default=None,
                         help="mesh size far from the cracks [m] (default 0.5, --quick 0.8)")
     parser.add_argument("--adapt", type=float, default=None, metavar="H_FINE",
-                        help="adaptive meshes with this fine size [m] (needs --premeshed; docs/model.md, "
-                             "'Adaptive meshes'): the cracks at twice it, h_fine where the contact mode or the "
-                             "load changes and where the bulk jumps")
+                        help="adaptive meshes with this fine size [m] (docs/model.md, 'Adaptive meshes'): "
+                             "the cracks at twice it, h_fine where the contact mode or the load changes, where "
+                             "the bulk jumps and at growing tips (full remeshes: not with --growth-remesh patch)")
     parser.add_argument("--adapt-tol", type=float, default=ADAPT_TOL,
                         help=f"the bulk jump that asks for refinement, relative to the peak load (default {ADAPT_TOL})")
     cli.add_pressure_factor_argument(parser)
@@ -300,8 +303,6 @@ def main(argv=None, regularized=None):
     if not args.ramp > 0:
         parser.error(f"--ramp must be > 0 s; got {args.ramp}")
     if args.adapt is not None:
-        if args.growth:
-            parser.error("--adapt works on pre-meshed paths: add --premeshed (free growth keeps its own size law)")
         if not 0 < args.adapt < 1.0:
             parser.error(f"--adapt must be a size in (0, 1) m; got {args.adapt}")
     if not args.adapt_tol > 0:

@@ -176,3 +176,30 @@ def test_the_intersection_runs_on_adaptive_meshes(tmp_path):
     acc = summ["accuracy"]
     assert acc["adaptive_refines"] >= 1 and acc["cells_max"] > acc["cells_min"]
     assert 0 < acc["intersection_time"] < 6e-4
+
+
+def test_growth_on_adaptive_meshes_restarts_and_partitions_alike(tmp_path, run_command, mpirun):
+    """Free growth with adaptive meshes (``intersection_regularized.py --quick --adapt 0.06``):
+    tips grow and the indicators remesh the unchanged geometry too.  A run on 2 ranks and a run
+    on 1 rank stopped at 1.0 ms and restarted to 1.2 ms grow the same paths with the same
+    adaptive remeshes, and end with the same energies (the refinement points do not depend on
+    the partition; the checkpoint holds the levels and the crack history)."""
+    import json
+    from pathlib import Path
+    script = Path(__file__).resolve().parents[1] / "scenarios" / "intersection_regularized.py"
+    args = ["--quick", "--adapt", "0.06", "--frames", "2"]
+    run_command([*mpirun(2), script, *args, "--t-end", "1.2e-3", "--out", tmp_path / "two"], timeout=600)
+    run_command([*mpirun(1), script, *args, "--t-end", "1.0e-3", "--out", tmp_path / "one"], timeout=600)
+    run_command([*mpirun(1), script, *args, "--t-end", "1.2e-3", "--out", tmp_path / "one", "--restart"],
+                timeout=600)
+    a, b = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("two", "one"))
+    ga, gb = (json.loads((tmp_path / d / "growth.json").read_text()) for d in ("two", "one"))
+    acc = a["accuracy"]
+    assert acc["extensions"] >= 3 and acc["adaptive_remeshes"] >= 1, acc
+    for key in ("extensions", "remeshes", "adaptive_remeshes", "adaptive_refines", "adaptive_coarsens", "tips"):
+        assert b["accuracy"][key] == acc[key], key
+    assert a["cells"] == b["cells"] and len(ga["meshes"]) == len(gb["meshes"])
+    for p, q in zip(ga["paths"], gb["paths"]):
+        np.testing.assert_allclose(np.array(p), np.array(q), rtol=0, atol=1e-9)
+    for k in ("kinetic", "strain", "work_in"):
+        assert b["energy"][k] == pytest.approx(a["energy"][k], rel=1e-8), k

@@ -139,7 +139,7 @@ def test_run_end_time_must_be_positive():
     ("refracture", ["--growth-max-radius", "-1"], "--growth-max-radius"),
     ("refracture", ["--pump-rate", "0"], "--pump-rate"),
     ("refracture", ["--pump-rate", "nan"], "--pump-rate"),
-    ("intersection", ["--adapt", "0.03"], "--premeshed"),
+    ("intersection", ["--adapt", "0.03", "--growth-remesh", "patch"], "--growth-remesh full"),
     ("intersection", ["--premeshed", "--adapt", "0"], "--adapt"),
     ("intersection", ["--premeshed", "--adapt", "0.03", "--adapt-tol", "-1"], "--adapt-tol"),
 ])
