@@ -207,6 +207,25 @@ _GROWTH_CHECKS = (
 )
 
 
+def add_adapt_arguments(parser):
+    """``--adapt H_FINE`` and ``--adapt-tol`` (docs/model.md, "Adaptive meshes")."""
+    from .wellbore import ADAPT_TOL
+    parser.add_argument("--adapt", type=float, default=None, metavar="H_FINE",
+                        help="adaptive meshes with this fine size [m] (docs/model.md, 'Adaptive meshes'): "
+                             "the cracks at twice it, h_fine where the contact mode or the load changes, where "
+                             "the bulk jumps and at growing tips (full remeshes: not with --growth-remesh patch)")
+    parser.add_argument("--adapt-tol", type=float, default=ADAPT_TOL,
+                        help=f"the bulk jump that asks for refinement, relative to the peak load (default {ADAPT_TOL})")
+
+
+def check_adapt_arguments(parser, args):
+    """Reject bad adaptive-mesh options before any meshing (exit 2, naming the option)."""
+    if args.adapt is not None and not 0 < args.adapt < 1.0:
+        parser.error(f"--adapt must be a size in (0, 1) m; got {args.adapt}")
+    if not args.adapt_tol > 0:
+        parser.error(f"--adapt-tol must be > 0; got {args.adapt_tol}")
+
+
 def check_growth_arguments(parser, args):
     """Reject bad growth options before any meshing (argparse's error: exit 2, with the fix);
     a default given by size takes the run's size here."""

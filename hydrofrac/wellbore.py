@@ -135,6 +135,23 @@ class Wellbore:
                              "use growth remesh 'full' (--growth-remesh full) with adapt")
 
 
+#: adaptive meshes (docs/benchmarks.md, "Adaptive meshes"): bulk jumps above this share of the
+#: peak load ask for refinement; the far size and the distance it is reached within
+ADAPT_TOL, ADAPT_H_FAR, ADAPT_GRADING = 0.2, 1.0, 0.5
+
+
+def adaptive(desc: Wellbore, h_fine: float, tol: float = ADAPT_TOL, h_crack=None, h_far=None) -> Wellbore:
+    """``desc`` on adaptive meshes (:mod:`hydrofrac.adapt`) with the fine size ``h_fine`` [m]:
+    the cracks at ``h_crack`` (default 2 h_fine) away from their process zones, ``h_far``
+    (default 1 m) reached within 0.5 m; bulk jumps relative to the peak load; growing tips keep
+    h_fine within 4 h_fine, where the criterion samples the stress."""
+    dom = replace(desc.domain, h_crack=h_crack or 2 * h_fine, h_far=h_far or ADAPT_H_FAR, grading=ADAPT_GRADING)
+    if desc.growth is not None:
+        dom = replace(dom, h_tip=h_fine, tip_radius=4 * h_fine)
+    peak = max(max(desc.pressure.values), desc.p0)
+    return replace(desc, domain=dom, adapt=Adapt(h_fine=h_fine, radius=2 * h_fine, stress_scale=peak, tol=tol))
+
+
 def closing_speed(desc: Wellbore) -> float:
     """The largest closing velocity jump [m/s] the load of ``desc`` can drive: crack faces
     unloaded from the peak fluid pressure (or from the confinement, if larger) by 2 p / Z_d, the

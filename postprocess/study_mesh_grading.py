@@ -12,7 +12,7 @@ is 3 cm):
 
 Adaptive meshes (:mod:`hydrofrac.adapt`; ``intersection.description(adapt=h_fine)``) run the
 same problem with the cracks at twice the fine size, ``h_fine`` only where the indicator flags
-(crack process zones, bulk jumps above ``intersection.ADAPT_TOL`` of the peak load), a far
+(crack process zones, bulk jumps above ``wellbore.ADAPT_TOL`` of the peak load), a far
 size of 1 m reached within 0.5 m: the work is counted in DOF·steps summed over the meshes,
 remeshing included in the wall time.
 

@@ -36,14 +36,12 @@
 #     mpirun -n 2 python scenarios/intersection.py --regularized [--quick] [--premeshed] [--out DIR]
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
 
 from hydrofrac import CONFINEMENT, cli, wellbore
-from hydrofrac.adapt import Adapt
 from hydrofrac.boundary import PiecewiseLinear
 from hydrofrac.growth import BRANCH_SPEED
 from hydrofrac.interface import DamageParams
@@ -84,32 +82,18 @@ def geometry(x_nf=None, nf_length=1.6, perf_length=0.3, path_length=0.6, quick=F
     return dom, perfs, [nf], paths
 
 
-#: adaptive meshes (docs/benchmarks.md, "Adaptive meshes"): bulk jumps above this share of the
-#: peak load are flagged; the far size and the distance it is reached within
-ADAPT_TOL, ADAPT_H_FAR, ADAPT_GRADING = 0.2, 1.0, 0.5
-
-
 def description(regularized=True, degree=2, quick=False, x_nf=None, tau=30e-6, delta_bar=0.1, nf_tau=1e-3,
                 h_crack=None, h_far=None, growth=None, ramp=RAMP, connected=True, adapt=None,
-                adapt_tol=ADAPT_TOL) -> wellbore.Wellbore:
+                adapt_tol=wellbore.ADAPT_TOL) -> wellbore.Wellbore:
     """The problem as data: ``growth`` (a :class:`hydrofrac.wellbore.Growth`) grows the cracks
     freely; None grows them along the pre-meshed potential paths.  ``adapt`` [m]: adaptive
-    meshes with that fine size, the cracks at twice it (``h_crack`` overrides), ``h_far`` 1 m
-    reached within 0.5 m (:mod:`hydrofrac.adapt`); growing tips keep the fine size within
-    4 h_fine, where the criterion samples."""
-    if adapt is not None:
-        h_crack = h_crack or 2 * adapt
-        h_far = h_far or ADAPT_H_FAR
+    meshes with that fine size (:func:`hydrofrac.wellbore.adaptive`; ``h_crack`` and ``h_far``
+    then size the coarse cracks and the far field)."""
     dom, perfs, nfs, paths = geometry(x_nf=x_nf, quick=quick, nf_tau=nf_tau, h_crack=h_crack, h_far=h_far)
-    extra = {}
-    if adapt is not None:
-        dom = replace(dom, grading=ADAPT_GRADING)
-        if growth is not None:
-            dom = replace(dom, h_tip=adapt, tip_radius=4 * adapt)
-        extra["adapt"] = Adapt(h_fine=adapt, radius=2 * adapt, stress_scale=P_PEAK, tol=adapt_tol)
-    return wellbore.Wellbore(dom, perfs, pressure_history(rise=ramp), fractures=nfs, paths=() if growth else paths,
+    desc = wellbore.Wellbore(dom, perfs, pressure_history(rise=ramp), fractures=nfs, paths=() if growth else paths,
                              regularized=regularized, degree=degree, damage=DamageParams(tau=tau),
-                             delta_bar=delta_bar, growth=growth, connected=connected, **extra)
+                             delta_bar=delta_bar, growth=growth, connected=connected)
+    return desc if adapt is None else wellbore.adaptive(desc, adapt, adapt_tol, h_crack=h_crack, h_far=h_far)
 
 
 def setup(comm=MPI.COMM_WORLD, record=None, **params):
@@ -272,12 +256,7 @@ def main(argv=None, regularized=None):
                         help="mesh size at the cracks [m] (default 0.03, --quick 0.06; Δa and r scale with it)")
     parser.add_argument("--h-far", type=float, default=None,
                         help="mesh size far from the cracks [m] (default 0.5, --quick 0.8)")
-    parser.add_argument("--adapt", type=float, default=None, metavar="H_FINE",
-                        help="adaptive meshes with this fine size [m] (docs/model.md, 'Adaptive meshes'): "
-                             "the cracks at twice it, h_fine where the contact mode or the load changes, where "
-                             "the bulk jumps and at growing tips (full remeshes: not with --growth-remesh patch)")
-    parser.add_argument("--adapt-tol", type=float, default=ADAPT_TOL,
-                        help=f"the bulk jump that asks for refinement, relative to the peak load (default {ADAPT_TOL})")
+    cli.add_adapt_arguments(parser)
     cli.add_pressure_factor_argument(parser)
     # the network evolves (docs/model.md §6): the natural fracture's ends are tips, and fast tips branch
     cli.add_growth_arguments(parser, natural_tips=True, branch_speed=BRANCH_SPEED)
@@ -302,11 +281,7 @@ def main(argv=None, regularized=None):
             parser.error(f"--{key.replace('_', '-')} must be in (0, 1) m; got {v}")
     if not args.ramp > 0:
         parser.error(f"--ramp must be > 0 s; got {args.ramp}")
-    if args.adapt is not None:
-        if not 0 < args.adapt < 1.0:
-            parser.error(f"--adapt must be a size in (0, 1) m; got {args.adapt}")
-    if not args.adapt_tol > 0:
-        parser.error(f"--adapt-tol must be > 0; got {args.adapt_tol}")
+    cli.check_adapt_arguments(parser, args)
     params = dict(regularized=reg, degree=args.degree, quick=args.quick, x_nf=args.x_nf, tau=args.tau,
                   ramp=args.ramp, connected=args.pressure_factor == "connected",
                   nf_tau=args.nf_tau, h_crack=args.h_crack, h_far=args.h_far, growth=wellbore.Growth.from_args(args),

@@ -84,14 +84,16 @@ def geometry(quick=False):
 
 
 def description(quick=False, degree=2, tau=30e-6, growth=None, connected=False,
-                pump_rate=PUMP_RATE) -> wellbore.Wellbore:
+                pump_rate=PUMP_RATE, adapt=None, adapt_tol=wellbore.ADAPT_TOL) -> wellbore.Wellbore:
     """The problem as data: free growth (``growth``) or the pre-meshed paths, and the fluid of a
-    pump at ``pump_rate`` [m²/s] (inf: an unlimited supply)."""
+    pump at ``pump_rate`` [m²/s] (inf: an unlimited supply); ``adapt`` [m]: adaptive meshes with
+    that fine size (:func:`hydrofrac.wellbore.adaptive`)."""
     dom, perfs, lengths, (pressure, _, _, _) = geometry(quick)
     paths = wellbore.radial_paths(dom, perfs, lengths)
-    return wellbore.Wellbore(dom, perfs, pressure, paths=() if growth else paths, regularized=True, degree=degree,
+    desc = wellbore.Wellbore(dom, perfs, pressure, paths=() if growth else paths, regularized=True, degree=degree,
                              damage=DamageParams(tau=tau), growth=growth, connected=connected,
                              volume=fluid_volume(pressure, pump_rate))
+    return desc if adapt is None else wellbore.adaptive(desc, adapt, adapt_tol)
 
 
 def setup(comm=MPI.COMM_WORLD, record=None, **params):
@@ -285,16 +287,22 @@ def main(argv=None):
                                      "docs/studies/scenarios.md")
     # the network evolves (docs/model.md §6): microcracks nucleate where the bulk reaches the strength
     cli.add_growth_arguments(parser, nucleation_cap=NUCLEATION_CAP)
+    cli.add_adapt_arguments(parser)
     histories = [geometry(q)[3] for q in (False, True)]  # (pressure, t_off, t_on, t_end), full and --quick
     args = cli.parse(parser, argv, name="refracture", degree=(2, 1), t_end=tuple(h[3] for h in histories),
                      frames=50)
     cli.check_growth_arguments(parser, args)
+    cli.check_adapt_arguments(parser, args)
     _, t_off, t_on, _ = histories[args.quick]
     if not args.pump_rate > 0:
         parser.error(f"--pump-rate must be > 0 m^2/s (inf: unlimited); got {args.pump_rate}")
     params = dict(quick=args.quick, degree=args.degree, tau=args.tau, growth=wellbore.Growth.from_args(args),
-                  connected=args.pressure_factor == "connected", pump_rate=args.pump_rate)
-    desc = description(**params)
+                  connected=args.pressure_factor == "connected", pump_rate=args.pump_rate, adapt=args.adapt,
+                  adapt_tol=args.adapt_tol)
+    try:
+        desc = description(**params)
+    except ValueError as err:
+        parser.error(str(err))
     r0 = desc.domain.wellbore_radius + desc.perforations[0].length
     if desc.growth is not None and desc.growth.max_radius is not None and not desc.growth.max_radius > r0:
         parser.error(f"--growth-max-radius {desc.growth.max_radius} m does not reach beyond the perforation tips "

@@ -142,6 +142,8 @@ def test_run_end_time_must_be_positive():
     ("intersection", ["--adapt", "0.03", "--growth-remesh", "patch"], "--growth-remesh full"),
     ("intersection", ["--premeshed", "--adapt", "0"], "--adapt"),
     ("intersection", ["--premeshed", "--adapt", "0.03", "--adapt-tol", "-1"], "--adapt-tol"),
+    ("refracture", ["--adapt", "-1"], "--adapt"),
+    ("refracture", ["--growth", "--adapt", "0.05", "--growth-remesh", "patch"], "--growth-remesh full"),
 ])
 def test_growth_options_rejected_before_meshing(name, args, word, capsys, tmp_path):
     """Bad growth or mesh options stop a wellbore scenario at once (exit 2) with the option
