@@ -742,7 +742,7 @@ class GrowthDriver:
         self.last_criterion_s = crit + (_time.perf_counter() - t_nuc)
         if not grown:
             return self._adapt_remesh(problem) if adapt_due else None
-        from .transfer import continue_run, transfer_fields, transfer_interface
+        from .adapt import carry_over
         if adapt_due:  # the new mesh takes the indicators' levels too
             _, spent = self.adapt.check(problem)
             self.last_criterion_s += spent
@@ -755,11 +755,7 @@ class GrowthDriver:
             self.restore_state(before_state)
             raise
         self._old_meshes.append(solver.mesh)
-        transfer_fields(solver, new.solver)
-        continue_run(solver, new.solver)
-        if self.iface is not None and new.interface is not None:
-            transfer_interface(self.iface, new.interface)
-        new.after_restore()
+        carry_over(problem, new)
         self.problem = new
         self.count += 1
         self._log_mesh()

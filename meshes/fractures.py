@@ -358,30 +358,26 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
             mf.setNumber(thr, "DistMin", domain.h_crack)
             mf.setNumber(thr, "DistMax", domain.grading)
             fields.append(thr)
-        for ref in refine:  # free points (not embedded): they only feed the Distance field
-            pts = [occ.addPoint(x, y, 0) for x, y in ref.points]
+
+        def near_points(points, h, radius):
+            """h within radius of free points (not embedded: they only feed the Distance
+            field), graded to h_far over ``grading``."""
+            pts = [occ.addPoint(x, y, 0) for x, y in points]
             occ.synchronize()
-            dref = mf.add("Distance")
-            mf.setNumbers(dref, "PointsList", pts)
-            tref = mf.add("Threshold")
-            mf.setNumber(tref, "InField", dref)
-            mf.setNumber(tref, "SizeMin", ref.h)
-            mf.setNumber(tref, "SizeMax", domain.h_far)
-            mf.setNumber(tref, "DistMin", ref.radius)
-            mf.setNumber(tref, "DistMax", ref.radius + domain.grading)
-            fields.append(tref)
+            d = mf.add("Distance")
+            mf.setNumbers(d, "PointsList", pts)
+            t = mf.add("Threshold")
+            mf.setNumber(t, "InField", d)
+            mf.setNumber(t, "SizeMin", h)
+            mf.setNumber(t, "SizeMax", domain.h_far)
+            mf.setNumber(t, "DistMin", radius)
+            mf.setNumber(t, "DistMax", radius + domain.grading)
+            fields.append(t)
+
+        for ref in refine:
+            near_points(ref.points, ref.h, ref.radius)
         if domain.h_tip is not None and tips:
-            pts = [occ.addPoint(x, y, 0) for x, y in tips]
-            occ.synchronize()
-            dtip = mf.add("Distance")
-            mf.setNumbers(dtip, "PointsList", pts)
-            ttip = mf.add("Threshold")
-            mf.setNumber(ttip, "InField", dtip)
-            mf.setNumber(ttip, "SizeMin", domain.h_tip)
-            mf.setNumber(ttip, "SizeMax", domain.h_far)
-            mf.setNumber(ttip, "DistMin", domain.tip_radius)
-            mf.setNumber(ttip, "DistMax", domain.tip_radius + domain.grading)
-            fields.append(ttip)
+            near_points(tips, domain.h_tip, domain.tip_radius)
         mn = mf.add("Min")
         mf.setNumbers(mn, "FieldsList", fields)
         mf.setAsBackgroundMesh(mn)
