@@ -526,6 +526,9 @@ class GrowthDriver:
     the paths it grew.
     """
 
+    adapt = None  # (class defaults: a driver restored from a checkpoint state alone has them)
+    adapt_count = 0
+
     def __init__(self, build, tips, params: GrowthParams, da: float, threshold: float, tags,
                  check_every: int = 10, ready_damage: float = 0.5, inside=None, domain_size=None,
                  obstacles=(), record=None, max_speed=None, nucleation: "NucleationParams | None" = None,

@@ -20,7 +20,8 @@ A third variant, lower p in the far field, is not supported (one p per mesh).
 
     mpirun -n 2 python -m hydrofrac.postprocess.study_mesh_grading [--out DIR]
 
-Writes ``mesh_grading.csv`` into ``postprocess/results`` (``--out``).
+Writes ``mesh_grading.csv`` and ``mesh_grading.png`` (each error against the work, static
+and adaptive meshes) into ``postprocess/results`` (``--out``).
 """
 from __future__ import annotations
 
@@ -30,7 +31,7 @@ from pathlib import Path
 from mpi4py import MPI
 
 from hydrofrac.postprocess.rundata import write_csv
-from hydrofrac.postprocess.study_common import scenario, study_parser, timed_run
+from hydrofrac.postprocess.study_common import save_figure, scenario, study_parser, timed_run
 
 CASES = [  # name, h_crack, h_far, adaptive h_fine (None: a static mesh)
     ("graded, h = 2.25 cm (reference)", 0.0225, 0.45, None),
@@ -94,6 +95,32 @@ def run_case(h_crack, h_far, h_fine=None):
             "nf_loaded_length": acc["nf_loaded_length_final"], **extra}
 
 
+def chart(rows, png):
+    """The two errors (absolute, against the reference) against the work in DOF·steps: the
+    static graded meshes, the adaptive ones and the uniform one."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    groups = [("graded (static)", lambda r: r["h_fine"] is None and r["h_far"] > r["h_crack"], "o-"),
+              ("adaptive", lambda r: r["h_fine"] is not None, "s-"),
+              ("uniform", lambda r: r["h_far"] == r["h_crack"], "^")]
+    for ax, key, unit, scale, title in ((axes[0], "intersection_time_error", "µs", 1e6, "intersection time"),
+                                        (axes[1], "loaded_length_error", "m", 1.0, "loaded length at 1 ms")):
+        for label, pick, style in groups:
+            rs = sorted([r for r in rows[1:] if pick(r)], key=lambda r: r["dof_steps"])
+            if rs:
+                ax.plot([r["dof_steps"] for r in rs], [abs(r[key]) * scale for r in rs], style, label=label)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("work [DOF·steps]")
+        ax.set_ylabel(f"|error| [{unit}]")
+        ax.set_title(f"{title} against the 2.25 cm reference", fontsize=10)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    save_figure(fig, png)
+
+
 def main(argv=None):
     args = study_parser(__doc__).parse_args(argv)
     comm = MPI.COMM_WORLD
@@ -115,6 +142,7 @@ def main(argv=None):
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         write_csv(out / "mesh_grading.csv", rows)
+        chart(rows, out / "mesh_grading.png")
         for r in rows:
             print(f"[study] {r['case']:48s} {r['dof_steps']:9.3g} DOF*steps  wall {r['wall_s']:7.1f} s  "
                   f"intersection error "
