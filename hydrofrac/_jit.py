@@ -25,12 +25,6 @@ def njit(fn):
     return numba.njit(cache=True, error_model="numpy", fastmath=FASTMATH)(fn) if HAVE_NUMBA else fn
 
 
-def njit_inline(fn):
-    """:func:`njit` for a small helper of the kernels, inlined into its callers by numba
-    (LLVM alone leaves the call, which costs up to 30 % at p = 1)."""
-    return numba.njit(cache=True, error_model="numpy", fastmath=FASTMATH, inline="always")(fn) if HAVE_NUMBA else fn
-
-
 def vectorize(point_fn, signatures):
     """A broadcasting ufunc made from a scalar point function (compiled with numba)."""
     if not HAVE_NUMBA:

@@ -26,7 +26,7 @@ import numpy as np
 from mpi4py import MPI
 
 from . import compat
-from ._jit import HAVE_NUMBA, njit, njit_inline
+from ._jit import HAVE_NUMBA, njit
 from .element import line_quadrature, triangle_quadrature
 from .riemann import bonded_jump_pt, boundary_pt
 
@@ -59,116 +59,6 @@ def _boundary_node(X, i, nx, ny, kn, kt, Zn, Zt, G, f, k):
     return vn, vt, sn, st, dsn, dvn, dst, dvt
 
 
-# per-cell helpers of the kernels, inlined into them (numba IR), so that the kernels' constant
-# sizes nb reach their loops and LLVM unrolls them as in one function
-@njit_inline
-def _load(u, X, dofs, c, nb, contig):
-    for j in range(nb):
-        base = 5 * (nb * c + j) if contig else 5 * dofs[c, j]
-        for k in range(5):
-            u[j, k] = X[base + k]
-
-
-@njit_inline
-def _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb, rows):
-    """r = the strong-form volume terms of cell c's polynomial u, per reference basis
-    function: (div sigma, grad v) in the velocity-stress layout, tested on phi_i.  ``rows``:
-    1 where the rows of S_r are equal (P1, :func:`_kernels`): row 0 is computed and copied."""
-    for i in range(rows):
-        for k in range(5):
-            s0 = 0.0
-            s1 = 0.0
-            for j in range(nb):
-                s0 += S0[i, j] * u[j, k]
-                s1 += S1[i, j] * u[j, k]
-            g0[i, k] = s0
-            g1[i, k] = s1
-    j00, j01, j10, j11 = Jinv[c, 0, 0], Jinv[c, 0, 1], Jinv[c, 1, 0], Jinv[c, 1, 1]
-    for i in range(rows):
-        # d/dx = Jinv[0,0] d/dX0 + Jinv[1,0] d/dX1 ; d/dy = Jinv[0,1] d/dX0 + Jinv[1,1] d/dX1
-        dx_vx = j00 * g0[i, 0] + j10 * g1[i, 0]
-        dy_vx = j01 * g0[i, 0] + j11 * g1[i, 0]
-        dx_vy = j00 * g0[i, 1] + j10 * g1[i, 1]
-        dy_vy = j01 * g0[i, 1] + j11 * g1[i, 1]
-        dx_sxx = j00 * g0[i, 2] + j10 * g1[i, 2]
-        dy_syy = j01 * g0[i, 3] + j11 * g1[i, 3]
-        dx_sxy = j00 * g0[i, 4] + j10 * g1[i, 4]
-        dy_sxy = j01 * g0[i, 4] + j11 * g1[i, 4]
-        r[i, 0] = dx_sxx + dy_sxy
-        r[i, 1] = dx_sxy + dy_syy
-        r[i, 2] = dx_vx
-        r[i, 3] = dy_vy
-        r[i, 4] = dy_vx + dx_vy
-    for i in range(rows, nb):
-        for k in range(5):
-            r[i, k] = r[0, k]
-
-
-@njit_inline
-def _material(w, t, B, nb):
-    """w = B^{-1} t node by node, with B^{-1} packed as in ``Btab`` (see below)."""
-    b00, b11 = B[0], B[1]
-    c22, c23, c24, c32, c33, c34 = B[2], B[3], B[4], B[5], B[6], B[7]
-    c42, c43, c44 = B[8], B[9], B[10]
-    for a in range(nb):
-        t2, t3, t4 = t[a, 2], t[a, 3], t[a, 4]
-        w[a, 0] = b00 * t[a, 0]
-        w[a, 1] = b11 * t[a, 1]
-        w[a, 2] = c22 * t2 + c23 * t3 + c24 * t4
-        w[a, 3] = c32 * t2 + c33 * t3 + c34 * t4
-        w[a, 4] = c42 * t2 + c43 * t3 + c44 * t4
-
-
-@njit_inline
-def _inverse_mass(w, r, tmp, Minv_ref, B, nb):
-    """w = (Minv_ref kron B^{-1}) r."""
-    for a in range(nb):
-        for k in range(5):
-            acc = 0.0
-            for b in range(nb):
-                acc += Minv_ref[a, b] * r[b, k]
-            tmp[a, k] = acc
-    _material(w, tmp, B, nb)
-
-
-@njit_inline
-def _store(out, w, dofs, c, nb, contig):
-    for a in range(nb):
-        base = 5 * (nb * c + a) if contig else 5 * dofs[c, a]
-        for k in range(5):
-            out[base + k] = w[a, k]
-
-
-@njit_inline
-def _taylor_integral(acc, u, r, g0, g1, D0, D1, Jinv, c, B, dt, order, nb, rows):
-    """acc = sum_{k=0..order} dt^(k+1)/(k+1)! D^k u for cell c (u is overwritten)."""
-    for j in range(nb):
-        for k in range(5):
-            acc[j, k] = dt * u[j, k]
-    coef = dt
-    for m in range(1, order + 1):
-        _strong_volume(r, u, g0, g1, D0, D1, Jinv, c, nb, rows)
-        _material(u, r, B, nb)
-        coef *= dt / (m + 1)
-        for j in range(nb):
-            for k in range(5):
-                acc[j, k] += coef * u[j, k]
-
-
-@njit_inline
-def _cell_rate(w, u, r, g0, g1, tmp, X, dofs, R, S0, S1, Jinv, invdet, Minv_ref, B, c, nb, rows, contig):
-    """w = M_c^{-1} (R[c] + volume terms of X on cell c), and R[c] zeroed (cleared for the
-    next stage: that saves a separate pass); ``u``, ``r``, ``g0``, ``g1``, ``tmp``: scratch."""
-    _load(u, X, dofs, c, nb, contig)
-    _strong_volume(r, u, g0, g1, S0, S1, Jinv, c, nb, rows)
-    e = invdet[c]  # (R + |det J| vol) / |det J|
-    for i in range(nb):
-        for k in range(5):
-            r[i, k] += e * R[c, i, k]
-            R[c, i, k] = 0.0
-    _inverse_mass(w, r, tmp, Minv_ref, B, nb)
-
-
 @functools.lru_cache(maxsize=None)
 def _kernels(nb, nk, contig=False):
     """The (volume + inverse mass, interior facet flux, facet dissipation, cell energies)
@@ -184,10 +74,9 @@ def _kernels(nb, nk, contig=False):
         """out[cell dofs] = M_c^{-1} (R[c] + volume terms of c), for the owned cells (R[c] is zeroed);
         M_c^{-1} = Minv_ref kron B^{-1} / |det J_c|, with B^{-1} = diag(1/rho, 1/rho) + a 3x3
         stiffness block, stored once per material: ``Btab[mat[c]]`` = (1/rho, 1/rho, the 3x3 block
-        row by row).  Written out rather than built from the inlined helpers above, which the
-        ADER corrector uses: numba's inlining of them costs 10x the compile time (23-29 s
-        against 2-3 s per kernel set), and LLVM alone does not unroll them (0.6x the speed).
-        So these loops exist twice; both paths are checked (tests/test_matfree.py against the
+        row by row).  Written out, as the ADER corrector is: numba's inlining of helpers costs
+        10x the compile time, and LLVM alone does not unroll them (0.6x the speed).  So the
+        volume loops exist twice; both paths are checked (tests/test_matfree.py against the
         assembled forms, tests/test_bulk.py::test_plane_wave_convergence_ader)."""
         u = np.empty((nb, 5))
         g0 = np.empty((nb, 5))
@@ -258,22 +147,86 @@ def _kernels(nb, nk, contig=False):
         strong-form operator (the volume terms and the inverse mass, no facet flux;
         ``D_r = Minv_ref S_r``, the nodal derivative matrices), for the next step: one pass
         for what would be the volume kernel, the update and the next predictor."""
+        # Written out in one loop over the passes m = 0..order (m = 0: the corrector's volume
+        # terms of I with S_r; m >= 1: the Taylor terms with D_r), not from inlined helpers:
+        # numba's inlining made this kernel take 140-160 s to compile per degree.
         u = np.empty((nb, 5))
-        g0 = np.empty((nb, 5))
-        g1 = np.empty((nb, 5))
+        g0 = np.empty((rows, 5))
+        g1 = np.empty((rows, 5))
         r = np.empty((nb, 5))
-        tmp = np.empty((nb, 5))
+        w = np.empty((nb, 5))
         acc = np.empty((nb, 5))
         for c in range(ncells):
             B = Btab[mat[c]]
-            _cell_rate(acc, u, r, g0, g1, tmp, I, dofs, R, S0, S1, Jinv, invdet, Minv_ref, B, c, nb, rows, contig)
-            _load(u, x, dofs, c, nb, contig)
+            b00, b11 = B[0], B[1]
+            c22, c23, c24, c32, c33, c34 = B[2], B[3], B[4], B[5], B[6], B[7]
+            c42, c43, c44 = B[8], B[9], B[10]
+            j00, j01, j10, j11 = Jinv[c, 0, 0], Jinv[c, 0, 1], Jinv[c, 1, 0], Jinv[c, 1, 1]
             for j in range(nb):
+                base = 5 * (nb * c + j) if contig else 5 * dofs[c, j]
                 for k in range(5):
-                    u[j, k] += acc[j, k]
-            _store(x, u, dofs, c, nb, contig)
-            _taylor_integral(acc, u, r, g0, g1, D0, D1, Jinv, c, B, dt, order, nb, rows)
-            _store(I, acc, dofs, c, nb, contig)
+                    u[j, k] = I[base + k]
+            coef = dt
+            for m in range(order + 1):
+                A0 = S0 if m == 0 else D0
+                A1 = S1 if m == 0 else D1
+                # r = the strong-form volume terms of u (row 0 copied where the rows are equal)
+                for i in range(rows):
+                    for k in range(5):
+                        s0 = 0.0
+                        s1 = 0.0
+                        for j in range(nb):
+                            s0 += A0[i, j] * u[j, k]
+                            s1 += A1[i, j] * u[j, k]
+                        g0[i, k] = s0
+                        g1[i, k] = s1
+                for i in range(nb):
+                    iv = i if rows == nb else 0
+                    r[i, 0] = j00 * g0[iv, 2] + j10 * g1[iv, 2] + j01 * g0[iv, 4] + j11 * g1[iv, 4]
+                    r[i, 1] = j00 * g0[iv, 4] + j10 * g1[iv, 4] + j01 * g0[iv, 3] + j11 * g1[iv, 3]
+                    r[i, 2] = j00 * g0[iv, 0] + j10 * g1[iv, 0]
+                    r[i, 3] = j01 * g0[iv, 1] + j11 * g1[iv, 1]
+                    r[i, 4] = j01 * g0[iv, 0] + j11 * g1[iv, 0] + j00 * g0[iv, 1] + j10 * g1[iv, 1]
+                if m == 0:  # w = M_c^-1 (R[c] + volume terms): first Minv_ref, into u
+                    e = invdet[c]
+                    for i in range(nb):
+                        for k in range(5):
+                            r[i, k] += e * R[c, i, k]
+                            R[c, i, k] = 0.0
+                    for a in range(nb):
+                        for k in range(5):
+                            t = 0.0
+                            for b in range(nb):
+                                t += Minv_ref[a, b] * r[b, k]
+                            u[a, k] = t
+                    src = u
+                else:  # D_r already holds Minv_ref
+                    src = r
+                for a in range(nb):  # w = B^-1 src, node by node
+                    t2, t3, t4 = src[a, 2], src[a, 3], src[a, 4]
+                    w[a, 0] = b00 * src[a, 0]
+                    w[a, 1] = b11 * src[a, 1]
+                    w[a, 2] = c22 * t2 + c23 * t3 + c24 * t4
+                    w[a, 3] = c32 * t2 + c33 * t3 + c34 * t4
+                    w[a, 4] = c42 * t2 + c43 * t3 + c44 * t4
+                if m == 0:  # the corrector: x += w; the predictor starts from the new x
+                    for j in range(nb):
+                        base = 5 * (nb * c + j) if contig else 5 * dofs[c, j]
+                        for k in range(5):
+                            v = x[base + k] + w[j, k]
+                            x[base + k] = v
+                            u[j, k] = v
+                            acc[j, k] = dt * v
+                else:  # the Taylor term dt^(m+1)/(m+1)! D^m x
+                    coef *= dt / (m + 1)
+                    for j in range(nb):
+                        for k in range(5):
+                            u[j, k] = w[j, k]
+                            acc[j, k] += coef * w[j, k]
+            for a in range(nb):
+                base = 5 * (nb * c + a) if contig else 5 * dofs[c, a]
+                for k in range(5):
+                    I[base + k] = acc[a, k]
 
     @njit
     def facet_fluxes(R, X, dofs, fcells, fcodes, normal, length, fnodes, Mf, Zd, Zs, nowned):
