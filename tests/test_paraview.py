@@ -63,12 +63,16 @@ def test_paraview_opens_series(borehole_quick, repo_root, tmp_path):
     cmd = [str(c) for c in (repo_root / "tests" / "paraview_script.py", out / "borehole.pvd",
                             out / "summary.json", png)]
     # `xvfb-run -a` starts looking for a free display at :99; concurrent runs on a shared
-    # machine can race for it, so start elsewhere and try a second display if the first fails
-    for attempt in range(2):
+    # machine can race for it, so start elsewhere and try another display if the X server
+    # was not usable: no connection, or the render window could not be created (a fresh-clone
+    # CI run once aborted in vtkXOpenGLRenderWindow::CreateAWindow after the data checks had
+    # passed). Any other failure is reported at once.
+    for attempt in range(3):
         display = str(random.randint(100, 30000))
         res = subprocess.run(["xvfb-run", "-a", "-n", display, "pvpython", *cmd], capture_output=True, text=True,
                              timeout=300)
-        if res.returncode == 0 or "bad X server connection" not in res.stderr:
+        x_failed = "bad X server connection" in res.stderr or "vtkXOpenGLRenderWindow::CreateAWindow" in res.stderr
+        if res.returncode == 0 or not x_failed:
             break
     assert res.returncode == 0, f"pvpython failed ({res.returncode}):\n{res.stdout[-3000:]}\n{res.stderr[-3000:]}"
     assert "paraview check passed" in res.stdout
