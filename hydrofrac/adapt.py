@@ -193,6 +193,7 @@ class Adaptivity:
         self.refines = self.coarsens = self.checks = 0
         self.indicator_s = 0.0
         self._cache = {}
+        self._before = self.levels  # the levels before the last check that changed them (undo)
 
     def _size(self, k):
         return self.params.h_fine * 2.0 ** k

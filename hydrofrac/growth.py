@@ -745,7 +745,6 @@ class GrowthDriver:
         self.last_criterion_s = crit + (_time.perf_counter() - t_nuc)
         if not grown:
             return self._adapt_remesh(problem) if adapt_due else None
-        from .adapt import carry_over
         if adapt_due:  # the new mesh takes the indicators' levels too
             _, spent = self.adapt.check(problem)
             self.last_criterion_s += spent
@@ -757,10 +756,16 @@ class GrowthDriver:
             # geometry is in the exception's message and files
             self.restore_state(before_state)
             raise
-        self._old_meshes.append(solver.mesh)
+        self.count += 1
+        return self._adopt(problem, new)
+
+    def _adopt(self, problem, new):
+        """Make ``new`` (built on the new mesh) the current problem: fields and interface state
+        carried over from ``problem``, the old mesh kept alive, the mesh logged and recorded."""
+        from .adapt import carry_over
+        self._old_meshes.append(problem.solver.mesh)
         carry_over(problem, new)
         self.problem = new
-        self.count += 1
         self._log_mesh()
         self.write()
         return new
@@ -768,7 +773,6 @@ class GrowthDriver:
     def _adapt_remesh(self, problem):
         """An adaptive check with no crack extension: remesh the same geometry when the
         indicators ask for it (:class:`hydrofrac.adapt.Adaptivity`); the new problem or None."""
-        from .adapt import carry_over
         why, spent = self.adapt.check(problem)
         self.last_criterion_s += spent
         if why is None:
@@ -778,13 +782,8 @@ class GrowthDriver:
         except Exception:
             self.adapt.undo(why)
             raise
-        self._old_meshes.append(problem.solver.mesh)
-        carry_over(problem, new)
-        self.problem = new
         self.adapt_count += 1
-        self._log_mesh()
-        self.write()
-        return new
+        return self._adopt(problem, new)
 
     def _new_tip(self, start, direction):
         """A new tip at ``start`` (its path's first point) heading along ``direction``; returns
