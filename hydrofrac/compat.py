@@ -78,10 +78,15 @@ def _ordered_partition(comm, nparts, graph, ghosting):
     owner[order] = (np.arange(n) * nparts // n).astype(np.int32)
     if not ghosting or nparts == 1:
         return AdjacencyList_int32(owner, np.arange(n + 1, dtype=np.int32))
-    dest = [[int(owner[i])] + sorted(set(owner[nbr[offsets[i]:offsets[i + 1]]].tolist()) - {int(owner[i])})
-            for i in range(n)]
-    lengths = np.array([len(d) for d in dest], np.int32)
-    return AdjacencyList_int32(np.concatenate(dest).astype(np.int32), np.r_[0, np.cumsum(lengths)].astype(np.int32))
+    # each cell's destinations: its owner first, then its neighbours' other owners in increasing order
+    other = owner[nbr]
+    ghost = other != owner[rows]
+    pairs = np.unique(rows[ghost].astype(np.int64) * nparts + other[ghost])
+    cell = np.r_[np.arange(n, dtype=np.int64), pairs // nparts]
+    rank = np.r_[owner, (pairs % nparts).astype(np.int32)]
+    order = np.argsort(cell, kind="stable")  # the owners (first n entries) stay ahead of their ghosts
+    lengths = np.bincount(cell, minlength=n)
+    return AdjacencyList_int32(rank[order].astype(np.int32), np.r_[0, np.cumsum(lengths)].astype(np.int32))
 
 
 def gmsh_model_to_mesh(model, comm, rank=0, gdim=2):
@@ -97,6 +102,36 @@ def gmsh_model_to_mesh(model, comm, rank=0, gdim=2):
         return gmshio.model_to_mesh(model, comm, rank, gdim=gdim)
     finally:
         gmshio.create_mesh = default
+
+
+def mesh_from_arrays(comm, nodes, cells, cell_tag, facets, facet_values, rank=0, gdim=2):
+    """A triangle mesh that ``rank`` holds as arrays -> (mesh, cell_tags, facet_tags), distributed
+    by :func:`_ordered_partition`: ``nodes`` (n, >= gdim), ``cells`` (m, 3) node indices, every cell
+    tagged ``cell_tag``, ``facets`` (k, 2) node pairs tagged ``facet_values`` (k,); the other ranks
+    pass empty arrays.  The same mesh and tags as :func:`gmsh_model_to_mesh` of a Gmsh model with
+    these nodes (by tag), triangles and lines, without building or reading one (0.9:
+    ``dolfinx.mesh.create_mesh`` takes the partitioner and the element; the tags the same way)."""
+    from dolfinx.io.gmshio import ufl_mesh
+    from dolfinx.cpp.graph import AdjacencyList_int32
+    here = comm.rank == rank
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3) if here else np.zeros((0, 3), np.int64)
+    x = np.ascontiguousarray(np.asarray(nodes, dtype=float)[:, :gdim]) if here else np.zeros((0, gdim))
+    facets = np.asarray(facets, dtype=np.int64).reshape(-1, 2) if here else np.zeros((0, 2), np.int64)
+    facet_values = np.asarray(facet_values, dtype=np.int32) if here else np.zeros(0, np.int32)
+    domain = ufl_mesh(2, gdim)  # Gmsh's element type 2: the 3-node triangle (its node order is DOLFINx's)
+    mesh = dolfinx.mesh.create_mesh(comm, cells, x, domain, ghost_mode=GHOST_MODE,
+                                    partitioner=dolfinx.mesh.create_cell_partitioner(_ordered_partition))
+    tdim = mesh.topology.dim
+    ent, val = dolfinx.cpp.io.distribute_entity_data(mesh._mesh, tdim, cells,
+                                                     np.full(cells.shape[0], cell_tag, np.int32))
+    mesh.topology.create_connectivity(tdim, 0)
+    ct = dolfinx.mesh.meshtags_from_entities(mesh, tdim, AdjacencyList_int32(ent), val.astype(np.int32))
+    ct.name = "Cell tags"
+    ent, val = dolfinx.cpp.io.distribute_entity_data(mesh._mesh, tdim - 1, facets, facet_values)
+    mesh.topology.create_connectivity(tdim - 1, tdim)
+    ft = dolfinx.mesh.meshtags_from_entities(mesh, tdim - 1, AdjacencyList_int32(ent), val.astype(np.int32))
+    ft.name = "Facet tags"
+    return mesh, ct, ft
 
 
 def meshtags(mesh, dim, entities, values):

@@ -28,7 +28,7 @@ from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .gmsh_util import build_mesh, gmsh_session, mesh_from_arrays
+from .gmsh_util import gmsh_session, mesh_arrays
 
 ROCK = 1
 WELLBORE = 1
@@ -403,17 +403,13 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
                                                           crack_tags=set(lines))
         n_patch, why = comm.bcast((n_patch, why), root=0)
         if why is None:
-            mesh, ct, ft = mesh_from_arrays(comm, lambda g: patch.discrete_model(g, merged, ROCK))
+            mesh, ct, ft = patch.distribute(comm, merged, ROCK)
             return FractureMesh(mesh, ct, ft, **tags, arrays=merged, remesh="patch", patch_cells=n_patch)
         fallback = why
-    holder = {}
-
-    def keep(gmsh):
-        from .patch import capture
-        holder["arrays"] = capture(gmsh, lines)
-
-    mesh, ct, ft = build_mesh(comm, build, name="fractures", out=out, verbose=verbose, after=keep)
-    return FractureMesh(mesh, ct, ft, **tags, arrays=holder.get("arrays"), fallback=fallback)
+    from .patch import capture, distribute
+    arrays = mesh_arrays(comm, build, lambda gmsh: capture(gmsh, lines), name="fractures", out=out, verbose=verbose)
+    mesh, ct, ft = distribute(comm, arrays, ROCK)
+    return FractureMesh(mesh, ct, ft, **tags, arrays=arrays, fallback=fallback)
 
 
 def _tips(lines):

@@ -4,7 +4,8 @@ Gmsh runs on rank 0 only: a geometry callback adds the entities and physical
 groups to the Gmsh model, Gmsh meshes it, and
 :func:`hydrofrac.compat.gmsh_model_to_mesh` distributes the triangles (with the
 facet ghosts the DG solver needs) and the physical groups as cell and facet
-tags.  If Gmsh fails, every rank raises the same :class:`RuntimeError`, and the
+tags (:func:`build_mesh`); or the mesh is captured as arrays on rank 0 (:func:`mesh_arrays`)
+for :func:`hydrofrac.compat.mesh_from_arrays`.  If Gmsh fails, every rank raises the same :class:`RuntimeError`, and the
 geometry is saved next to the output so it can be opened with ``gmsh <file>``.
 """
 from __future__ import annotations
@@ -79,7 +80,7 @@ def _geometry_and_mesh(gmsh, name, build, mesh_dim, out, verbose):
 
 
 def build_mesh(comm: MPI.Comm, build: Callable, name: str = "model", out: Optional[Union[str, Path]] = None,
-               gdim: int = 2, verbose: bool = False, after: Optional[Callable] = None):
+               gdim: int = 2, verbose: bool = False):
     """Mesh a Gmsh geometry on rank 0 and distribute it over ``comm``.
 
     Parameters
@@ -93,8 +94,6 @@ def build_mesh(comm: MPI.Comm, build: Callable, name: str = "model", out: Option
         fresh temporary folder)
     gdim : geometric (and mesh) dimension
     verbose : show Gmsh's own log
-    after : ``after(gmsh)`` runs on rank 0 once the mesh is made, before the model is removed
-        (e.g. to keep its arrays); ``build`` may also make the mesh itself, as a discrete model
 
     Returns
     -------
@@ -111,8 +110,6 @@ def build_mesh(comm: MPI.Comm, build: Callable, name: str = "model", out: Option
         try:
             if error is not None:
                 raise RuntimeError(error)
-            if comm.rank == 0 and after is not None:
-                after(gmsh)
             return compat.gmsh_model_to_mesh(gmsh.model, comm, rank=0, gdim=gdim)
         finally:
             if comm.rank == 0:
@@ -134,16 +131,20 @@ def gmsh_session(comm: MPI.Comm):
             gmsh.finalize()
 
 
-def mesh_from_arrays(comm: MPI.Comm, make_model: Callable, gdim: int = 2):
-    """Distribute a mesh that rank 0 holds as arrays: ``make_model(gmsh)`` adds it to a fresh
-    Gmsh model as discrete entities with physical groups (rank 0 only; e.g.
-    :func:`hydrofrac.meshes.patch.discrete_model`).  Returns (mesh, cell_tags, facet_tags)."""
+def mesh_arrays(comm: MPI.Comm, build: Callable, capture: Callable, name: str = "model",
+                out: Optional[Union[str, Path]] = None, gdim: int = 2, verbose: bool = False):
+    """Mesh a Gmsh geometry on rank 0 as :func:`build_mesh` does, and return what
+    ``capture(gmsh)`` makes of the mesh there (e.g. :func:`hydrofrac.meshes.patch.capture`'s
+    arrays; None on the other ranks), for :func:`hydrofrac.compat.mesh_from_arrays` to
+    distribute without reading the Gmsh model again.  Raises RuntimeError on every rank if the
+    geometry or the meshing fails."""
     with gmsh_session(comm) as gmsh:
-        if comm.rank == 0:
-            gmsh.option.setNumber("General.Terminal", 0)
-            make_model(gmsh)
+        error = _mesh_on_root(gmsh, name, build, gdim, out, verbose) if comm.rank == 0 else None
+        error = comm.bcast(error, root=0)
         try:
-            return compat.gmsh_model_to_mesh(gmsh.model, comm, rank=0, gdim=gdim)
+            if error is not None:
+                raise RuntimeError(error)
+            return capture(gmsh) if comm.rank == 0 else None
         finally:
             if comm.rank == 0:
                 gmsh.model.remove()

@@ -11,8 +11,8 @@ law as the full mesh (:class:`SizeLaw`), and returns the merged arrays.  Where a
 be made, it says why and the caller meshes the whole domain: a patch boundary that touches
 itself at a vertex, a new segment outside the patch, or Gmsh failing on the patch.
 
-Everything here runs on rank 0; :func:`discrete_model` turns merged arrays into a Gmsh model
-that :func:`hydrofrac.compat.gmsh_model_to_mesh` distributes like any other.
+Everything here runs on rank 0 but :func:`distribute`, which hands the merged arrays to
+:func:`hydrofrac.compat.mesh_from_arrays` (the same path as a full Gmsh mesh's arrays).
 """
 from __future__ import annotations
 
@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
+
+from hydrofrac import compat
 
 try:
     import numba
@@ -157,22 +159,15 @@ def capture(gmsh, polylines) -> MeshArrays:
                       {int(k): np.asarray(v, dtype=float) for k, v in polylines.items()})
 
 
-def discrete_model(gmsh, arrays: MeshArrays, cell_tag: int, name="patched"):
-    """A Gmsh model holding ``arrays`` as discrete entities and physical groups (cells
-    ``cell_tag``, each line tag its own group), for gmshio's ``model_to_mesh``."""
-    model = gmsh.model
-    model.add(name)
-    n = arrays.nodes.shape[0]
-    model.addDiscreteEntity(2, 1)
-    xyz = np.zeros((n, 3))
-    xyz[:, :2] = arrays.nodes
-    model.mesh.addNodes(2, 1, np.arange(1, n + 1), xyz.reshape(-1))
-    model.mesh.addElementsByType(1, _TRIANGLE, [], (arrays.tris + 1).reshape(-1))
-    model.addPhysicalGroup(2, [1], cell_tag)
-    for k, (tag, edges) in enumerate(sorted(arrays.lines.items())):
-        model.addDiscreteEntity(1, k + 1)
-        model.mesh.addElementsByType(k + 1, _LINE, [], (edges + 1).reshape(-1))
-        model.addPhysicalGroup(1, [k + 1], tag)
+def distribute(comm, arrays: MeshArrays, cell_tag: int):
+    """(mesh, cell_tags, facet_tags) of ``arrays`` (held on rank 0, None elsewhere), distributed
+    over ``comm``: every triangle tagged ``cell_tag``, each line's edges their tag."""
+    if comm.rank == 0:
+        items = sorted(arrays.lines.items())
+        facets = np.concatenate([e for _, e in items]) if items else np.zeros((0, 2), np.int64)
+        values = np.concatenate([np.full(len(e), t, np.int32) for t, e in items]) if items else np.zeros(0, np.int32)
+        return compat.mesh_from_arrays(comm, arrays.nodes, arrays.tris, cell_tag, facets, values)
+    return compat.mesh_from_arrays(comm, None, None, cell_tag, None, None)
 
 
 def _segments(polylines):

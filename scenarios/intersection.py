@@ -122,56 +122,68 @@ class IntersectionMonitor(Monitor):
         # from that end first carries load (mean f_p > 0.5 on one of its facets)
         self.t_end_loaded = [None, None]
         self.t_branch_loaded = [None, None]
+        self._cached = None  # (interface, its facet masks): see _masks
 
-    def _watch_ends(self, problem):
-        """The load at the natural fracture's two ends and on the cracks grown from them."""
-        iface, hyd, comm = problem.interface, problem.hydraulics, problem.comm
-        nfs = [c for c in problem.network.cracks if c.tag in self.nf_tags] if problem.network is not None else []
-        if len(nfs) != 1:
-            return
-        ends = nfs[0].points[[0, -1]]
-        centre = 0.5 * (ends[0] + ends[1])  # the junction lies at the fracture's middle
-        fp = hyd.fp_q.mean(axis=1) if iface.facets.size else np.zeros(0)
-        mid = iface.points.mean(axis=1) if iface.facets.size else np.zeros((0, 2))
+    def _masks(self, problem):
+        """The facet selections of this mesh's interface (they change only with a remesh, which
+        makes a new interface): the natural fracture, its Gauss points away from the junction
+        and, per end, the half from the junction to the end zone and the cracks grown there."""
+        iface = problem.interface
+        if self._cached is not None and self._cached[0] is iface:
+            return self._cached[1]
         nf = np.isin(iface.crack_tag, self.nf_tags)
-        for k, end in enumerate(ends):
-            grown = [c.tag for c in problem.network.cracks if c.tag not in self.nf_tags
-                     and np.linalg.norm(c.points[0] - end) < 1e-6]
-            # the front along the fracture has reached the end zone when every facet of this half,
-            # from the junction to the zone, carries load
-            half = nf & ((mid - centre) @ (end - centre) > 0) & (np.linalg.norm(mid - end, axis=1) >= self.end_zone)
-            branch = np.isin(iface.crack_tag, grown)
-            hit = comm.allreduce(np.array([(fp[half] <= 0.5).any(), (fp[branch] > 0.5).any(), half.any()],
-                                          dtype=int), op=MPI.SUM)
-            hit = (hit[0] == 0 and hit[2] > 0, hit[1] > 0)
-            if hit[0] and self.t_end_loaded[k] is None:
-                self.t_end_loaded[k] = problem.t
-            if hit[1] and self.t_branch_loaded[k] is None:
-                self.t_branch_loaded[k] = problem.t
-
-    def __call__(self, problem):
-        iface, hyd, comm = problem.interface, problem.hydraulics, problem.comm
-        nf = np.isin(iface.crack_tag, self.nf_tags)
-        if self.nf_length is None:
-            self.nf_length = comm.allreduce(float(iface.weights[nf].sum()), op=MPI.SUM)
-        loaded_nf = comm.allreduce(bool(hyd.loaded[nf].any()), op=MPI.LOR)
-        if loaded_nf and self.t_intersection is None:
-            self.t_intersection = problem.t
-        T = iface.last
         # away from the junction (y = 0): the unregularised load hits the whole fracture at once
         far = np.abs(iface.points[..., 1]).reshape(-1) > self.far
-        sel = np.repeat(nf, iface.nq) & far
-        peaks = np.zeros(2)
+        m = {"nf": nf, "sel": np.repeat(nf, iface.nq) & far, "ends": []}
+        nfs = [c for c in problem.network.cracks if c.tag in self.nf_tags] if problem.network is not None else []
+        if len(nfs) == 1:
+            ends = nfs[0].points[[0, -1]]
+            centre = 0.5 * (ends[0] + ends[1])  # the junction lies at the fracture's middle
+            mid = iface.points.mean(axis=1) if iface.facets.size else np.zeros((0, 2))
+            for end in ends:
+                grown = [c.tag for c in problem.network.cracks if c.tag not in self.nf_tags
+                         and np.linalg.norm(c.points[0] - end) < 1e-6]
+                # the front has reached the end zone when every facet of this half, from the
+                # junction to the zone, carries load
+                half = nf & ((mid - centre) @ (end - centre) > 0) & (np.linalg.norm(mid - end, axis=1) >= self.end_zone)
+                m["ends"].append((half, np.isin(iface.crack_tag, grown)))
+        self._cached = (iface, m)
+        return m
+
+    def __call__(self, problem):
+        """One collective a step: each rank's sums, maxima and counts, gathered and reduced here."""
+        iface, hyd, comm = problem.interface, problem.hydraulics, problem.comm
+        m = self._masks(problem)
+        nf, sel = m["nf"], m["sel"]
+        T = iface.last
+        local = np.zeros(6 + 3 * len(m["ends"]))
         if sel.any():
-            # opening rate [[v*^1]] = v*- - v*+ and particle speed of either face
-            peaks[0] = np.abs(T["vm_star"][sel, 0] - T["vp_star"][sel, 0]).max()
-            peaks[1] = max(np.linalg.norm(T["vp_star"][sel], axis=1).max(),
+            # opening rate [[v*^1]] = v*- - v*+ and particle speed of either face (maxima)
+            local[0] = np.abs(T["vm_star"][sel, 0] - T["vp_star"][sel, 0]).max()
+            local[1] = max(np.linalg.norm(T["vp_star"][sel], axis=1).max(),
                            np.linalg.norm(T["vm_star"][sel], axis=1).max())
-        comm.Allreduce(MPI.IN_PLACE, peaks, op=MPI.MAX)
-        lf = comm.allreduce(float((hyd.fp_q[nf] * iface.weights[nf]).sum()), op=MPI.SUM)
-        net = comm.allreduce(float((hyd.network[:, None] * iface.weights).sum()), op=MPI.SUM)
-        self.rows.append((problem.t, lf, peaks[0], net, peaks[1]))
-        self._watch_ends(problem)
+        # sums: the natural fracture's loaded facets, its f_p-weighted and whole length, the network
+        local[2] = float(hyd.loaded[nf].sum())
+        local[3] = float((hyd.fp_q[nf] * iface.weights[nf]).sum())
+        local[4] = float((hyd.network[:, None] * iface.weights).sum())
+        local[5] = float(iface.weights[nf].sum())
+        if m["ends"]:
+            fp = hyd.fp_q.mean(axis=1) if iface.facets.size else np.zeros(0)
+            for k, (half, branch) in enumerate(m["ends"]):
+                local[6 + 3 * k:9 + 3 * k] = ((fp[half] <= 0.5).sum(), (fp[branch] > 0.5).sum(), half.sum())
+        rows = np.array(comm.allgather(local))
+        peaks, tot = rows[:, :2].max(axis=0), rows[:, 2:].sum(axis=0)
+        if self.nf_length is None:
+            self.nf_length = float(tot[3])
+        if tot[0] > 0 and self.t_intersection is None:
+            self.t_intersection = problem.t
+        self.rows.append((problem.t, float(tot[1]), peaks[0], float(tot[2]), peaks[1]))
+        for k in range(len(m["ends"])):
+            unloaded, branch_loaded, half = tot[4 + 3 * k:7 + 3 * k]
+            if unloaded == 0 and half > 0 and self.t_end_loaded[k] is None:
+                self.t_end_loaded[k] = problem.t
+            if branch_loaded > 0 and self.t_branch_loaded[k] is None:
+                self.t_branch_loaded[k] = problem.t
 
     def history(self, problem):
         t, lf, vmax, net, vpart = self.rows[-1] if self.rows else (problem.t, 0.0, 0.0, 0.0, 0.0)
