@@ -20,6 +20,9 @@ from . import compat
 from .boundary import RADIATING, OuterState, Traction, Velocity, ufl_data
 from .forms import elastodynamics as ef
 
+#: an extension's power terms (:meth:`hydrofrac.interface.Interface.local_dissipation_rates`), in order
+DISSIPATION_TERMS = ("friction", "damage", "flux", "work_in")
+
 @dataclass
 class EnergyBudget:
     """Cumulative energy terms [J/m] relative to the initial stress state."""
@@ -134,12 +137,29 @@ class EnergyAccount:
                 self._power_forms.append((False, compat.form(P)))
         self._bdiss_form = None if bdiss is None else compat.form(bdiss)
 
+    def _local_energies(self):
+        """This rank's (kinetic, strain) sums (matrix-free)."""
+        s = self.solver
+        with s.x.localForm() as xl, s.x0.localForm() as x0l:
+            return np.array(s.matfree.energies(xl.array_r, x0l.array_r))
+
+    def _local_rates(self):
+        """This rank's (power in, power out, upwind dissipation) sums (matrix-free); updates the
+        ghosts first."""
+        s = self.solver
+        if s.comm.size > 1:
+            s.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        with s.x.localForm() as xl:
+            X = xl.array_r
+            r = np.array(s.matfree.boundary_rates(X, s.t, s.sigma0))
+            r[2] += s.matfree.dissipation_rate(X)
+        return r
+
     def energies(self):
         """(kinetic, strain) energy relative to the initial stress state [J/m]."""
         s = self.solver
         if s.matfree is not None:
-            with s.x.localForm() as xl, s.x0.localForm() as x0l:
-                e = np.array(s.matfree.energies(xl.array_r, x0l.array_r))
+            e = self._local_energies()
             s.comm.Allreduce(MPI.IN_PLACE, e, op=MPI.SUM)
             return float(e[0]), float(e[1])
         d = s._work[-1] if hasattr(s, "_work") else s.x_like()
@@ -158,12 +178,7 @@ class EnergyAccount:
         interior and exterior facets)."""
         s = self.solver
         if s.matfree is not None:
-            if s.comm.size > 1:
-                s.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-            with s.x.localForm() as xl:
-                X = xl.array_r
-                r = np.array(s.matfree.boundary_rates(X, s.t, s.sigma0))
-                r[2] += s.matfree.dissipation_rate(X)
+            r = self._local_rates()
             s.comm.Allreduce(MPI.IN_PLACE, r, op=MPI.SUM)
             return float(r[0]), float(r[1]), float(r[2])
         # copy through the Function's own array (not a PETSc wrapper of it: a wrapper that
@@ -196,16 +211,24 @@ class EnergyAccount:
         boundary power and dissipation rates) and recompute the stored energy."""
         s = self.solver
         t0 = time.perf_counter()
-        rates = self.rates()
-        p_in, p_rad, diss = rates
+        if s.matfree is not None:
+            # every sum of the step in one reduction: the bulk's rates, its energies, each extension's terms
+            local = np.concatenate([self._local_rates(), self._local_energies()]
+                                   + [ext.local_dissipation_rates() for ext in s.extensions])
+            s.comm.Allreduce(MPI.IN_PLACE, local, op=MPI.SUM)
+            (p_in, p_rad, diss), (kin, strain) = local[:3].tolist(), local[3:5].tolist()
+            ext_rates = [dict(zip(DISSIPATION_TERMS, local[5 + 4 * k:9 + 4 * k].tolist()))
+                         for k in range(len(s.extensions))]
+        else:
+            p_in, p_rad, diss = self.rates()
+            ext_rates = [ext.dissipation_rates() for ext in s.extensions]
+            kin, strain = self.energies()
         fr = dm = 0.0
-        for ext in s.extensions:
-            r = ext.dissipation_rates()
+        for r in ext_rates:
             p_in += r["work_in"]
             diss += r["flux"]
             fr += r["friction"]
             dm += r["damage"]
-        kin, strain = self.energies()
         rates = (p_in, p_rad, diss, fr, dm, 2.0 * s.relaxation * kin)
         if self.last_rates is not None:
             h = 0.5 * s.dt

@@ -28,6 +28,7 @@ from . import compat
 from . import kernels
 from . import riemann as rm
 from .element import line_quadrature
+from .energy import DISSIPATION_TERMS
 
 #: integer codes of the dominant contact mode, for output
 MODE_BONDED, MODE_STICK, MODE_SLIP, MODE_SEPARATED = 0, 1, 2, 3
@@ -545,9 +546,16 @@ class Interface:
         initial stress, e.g. the net fluid pressure, and of the initial shear traction
         (sigma0 n)_t on the slip: the energy is measured relative to sigma0, so releasing
         that traction on a sliding crack is a source, not negative friction)."""
+        tot = np.zeros(4)
+        self.solver.comm.Allreduce(self.local_dissipation_rates(), tot, op=MPI.SUM)  # one reduction for the four
+        return dict(zip(DISSIPATION_TERMS, tot.tolist()))
+
+    def local_dissipation_rates(self):
+        """This rank's part of :meth:`dissipation_rates`, as an array in the order of
+        :data:`DISSIPATION_TERMS` (for a caller that reduces it with other sums at once)."""
         T = self.last
         if not T:
-            return {"friction": 0.0, "damage": 0.0, "flux": 0.0, "work_in": 0.0}
+            return np.zeros(4)
         wq = self.weights.reshape(-1)
         jump = T["vm_star"] - T["vp_star"]
         a_S = rm.mode_fractions(T["D"], T["eta"], T["gamma"])[:, 3]
@@ -561,10 +569,7 @@ class Interface:
         fric = T["s_star"][:, 1] * jump[:, 1]
         p_shear0 = s0n[:, 1] * jump[:, 1]
         flux = (T["Zp"] * (T["vp_star"] - T["vp"]) ** 2 + T["Zm"] * (T["vm_star"] - T["vm"]) ** 2).sum(axis=1)
-        local = np.array([(a * wq).sum() for a in (fric, p_normal - p_sep, flux, p_shear0 - p_sep)])
-        tot = np.zeros(4)
-        self.solver.comm.Allreduce(local, tot, op=MPI.SUM)  # one reduction for the four terms
-        return dict(zip(("friction", "damage", "flux", "work_in"), tot.tolist()))
+        return np.array([(a * wq).sum() for a in (fric, p_normal - p_sep, flux, p_shear0 - p_sep)])
 
     # ------------------------------------------------------------------ output
     def fields(self):

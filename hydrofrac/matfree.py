@@ -597,7 +597,10 @@ class MatrixFreeOperator:
                                "(isotropic density); use operator='assembled' for other materials")
         # one row per distinct material: 1/rho (twice) and the 3x3 stiffness block
         packed = np.concatenate([B[:, 0, 0:1], B[:, 1, 1:2], B[:, 2:, 2:].reshape(-1, 9)], axis=1)
-        table, mat = np.unique(packed, axis=0, return_inverse=True)
+        if packed.shape[0] and (packed == packed[0]).all():  # one material: np.unique's answer, without its sort
+            table, mat = packed[:1].copy(), np.zeros(packed.shape[0], dtype=np.int64)
+        else:
+            table, mat = np.unique(packed, axis=0, return_inverse=True)
         self.Btab = np.ascontiguousarray(table)
         self.mat = np.ascontiguousarray(mat.reshape(-1), dtype=np.int32)
         self.dofs = np.ascontiguousarray(compat.cell_dofs(solver.V), dtype=np.int64)

@@ -124,3 +124,79 @@ def test_gmsh_needs_physical_cells(tmp_path):
 
     with pytest.raises(RuntimeError, match="no physical group of dimension 2"):
         build_mesh(MPI.COMM_WORLD, untagged, name="untagged", out=tmp_path)
+
+
+def _reference_destinations(graph, owner):
+    """Each cell's ranks, written out: its owner, then its neighbours' other owners in order."""
+    offsets, nbr = np.asarray(graph.offsets), np.asarray(graph.array)
+    dest = [[int(owner[i])] + sorted(set(owner[nbr[offsets[i]:offsets[i + 1]]].tolist()) - {int(owner[i])})
+            for i in range(len(offsets) - 1)]
+    return np.concatenate(dest), np.r_[0, np.cumsum([len(d) for d in dest])]
+
+
+@pytest.mark.parametrize("nparts", [2, 3, 7])
+def test_ordered_partition_ghost_destinations(nparts):
+    """The vectorised partition sends every cell to its owner first and then to each other rank
+    that owns one of its facet neighbours, once, in increasing order, as the loop over cells it
+    replaced did (the owners: reverse Cuthill-McKee slabs)."""
+    from dolfinx.cpp.graph import AdjacencyList_int32
+    rng = np.random.default_rng(nparts)
+    n = 500
+    pairs = {tuple(sorted(p)) for p in rng.integers(0, n, (3 * n, 2)).tolist() if p[0] != p[1]}
+    nbrs = [[] for _ in range(n)]
+    for a, b in pairs:
+        nbrs[a].append(b)
+        nbrs[b].append(a)
+    graph = AdjacencyList_int32(np.concatenate([sorted(x) for x in nbrs]).astype(np.int32),
+                                np.r_[0, np.cumsum([len(x) for x in nbrs])].astype(np.int32))
+    part = compat._ordered_partition(MPI.COMM_SELF, nparts, graph, True)
+    arr, off = np.asarray(part.array), np.asarray(part.offsets)
+    owner = arr[off[:-1]]
+    assert np.bincount(owner, minlength=nparts).max() - np.bincount(owner, minlength=nparts).min() <= 1
+    ref_arr, ref_off = _reference_destinations(graph, owner)
+    assert np.array_equal(arr, ref_arr) and np.array_equal(off, ref_off)
+
+
+def check_mesh_from_arrays_is_gmshio():
+    """A fracture mesh distributed from its arrays is the mesh (nodes, cells, cell and facet tags)
+    that DOLFINx's gmshio makes of the same triangles and lines in a Gmsh model."""
+    from hydrofrac.meshes import fractures as fr
+    from hydrofrac.meshes.gmsh_util import gmsh_session
+    comm = MPI.COMM_WORLD
+    dom = fr.Domain(half_width=1.0, half_height=1.0, h_crack=0.1, h_far=0.4, grading=0.5)
+    fm = fr.fracture_mesh(comm, dom, perforations=[fr.Perforation(0.0, 0.3)],
+                          fractures=[fr.Fracture((0.6, 0.0), 90.0, 0.6)])
+    arrays = comm.bcast(fm.arrays, root=0)
+    with gmsh_session(comm) as gmsh:
+        if comm.rank == 0:
+            gmsh.option.setNumber("General.Terminal", 0)
+            model = gmsh.model
+            model.add("discrete")
+            xyz = np.zeros((arrays.nodes.shape[0], 3))
+            xyz[:, :2] = arrays.nodes
+            model.addDiscreteEntity(2, 1)
+            model.mesh.addNodes(2, 1, np.arange(1, xyz.shape[0] + 1), xyz.reshape(-1))
+            model.mesh.addElementsByType(1, 2, [], (arrays.tris + 1).reshape(-1))
+            model.addPhysicalGroup(2, [1], fr.ROCK)
+            for k, (tag, edges) in enumerate(sorted(arrays.lines.items())):
+                model.addDiscreteEntity(1, k + 1)
+                model.mesh.addElementsByType(k + 1, 1, [], (edges + 1).reshape(-1))
+                model.addPhysicalGroup(1, [k + 1], tag)
+        mesh, ct, ft = compat.gmsh_model_to_mesh(gmsh.model, comm, rank=0, gdim=2)
+        if comm.rank == 0:
+            gmsh.model.remove()
+    assert np.array_equal(fm.mesh.geometry.x, mesh.geometry.x)
+    assert np.array_equal(fm.mesh.geometry.dofmap.array, mesh.geometry.dofmap.array)
+    for a, b in ((fm.cell_tags, ct), (fm.facet_tags, ft)):
+        assert np.array_equal(a.indices, b.indices) and np.array_equal(a.values, b.values)
+    tags = set().union(*comm.allgather(set(np.unique(fm.facet_tags.values).tolist())))
+    assert tags == {fr.OUTER, fr.WELLBORE, fr.PERFORATION, fr.NATURAL}
+
+
+def test_mesh_from_arrays_is_gmshio():
+    check_mesh_from_arrays_is_gmshio()
+
+
+@pytest.mark.mpi
+def test_mesh_from_arrays_is_gmshio_mpi():
+    check_mesh_from_arrays_is_gmshio()
