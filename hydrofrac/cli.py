@@ -131,11 +131,13 @@ def add_pressure_factor_argument(parser, default="connected", why=""):
                              f"so an open crack end takes the load through a closed part (default {default}{why})")
 
 
-def add_growth_arguments(parser, natural_tips=False, branch_speed=math.inf, nucleation_cap=0):
+def add_growth_arguments(parser, natural_tips=False, branch_speed=math.inf, nucleation_cap=0, remesh="full"):
     """The free-growth options shared by the wellbore scenarios (intersection, re-fracture):
     ``--growth`` (the default) / ``--premeshed`` and the criterion's parameters, in
     crack-facet sizes h; the network's events default to the scenario's ``natural_tips``,
-    ``branch_speed`` and ``nucleation_cap`` (one value, or (full size, ``--quick``)).  (One add_argument per option, each with its own help: the repeated
+    ``branch_speed`` and ``nucleation_cap`` (one value, or (full size, ``--quick``)), the remesh
+    to its ``remesh`` ("full" or "patch"; with ``--adapt`` always "full", since adaptive meshes
+    change the size field everywhere: :func:`check_growth_arguments` resolves it).  (One add_argument per option, each with its own help: the repeated
     shape is argparse's, kept on purpose for the readable help texts.)"""
     g = parser.add_mutually_exclusive_group()
     g.add_argument("--growth", dest="growth", action="store_true", default=True,
@@ -182,10 +184,13 @@ def add_growth_arguments(parser, natural_tips=False, branch_speed=math.inf, nucl
     parser.add_argument("--growth-max-radius", type=float, default=None,
                         help="tips stop at this distance from the wellbore centre [m] (default: only the outer "
                              "boundary stops them)")
-    parser.add_argument("--growth-remesh", choices=("full", "patch"), default="full",
-                        help="after an extension, mesh the whole domain again (full, default) or only a patch "
-                             "around the new segments, keeping the rest of the mesh (patch; docs/benchmarks.md, "
-                             "\"Remeshing: local patches\")")
+    if remesh not in ("full", "patch"):
+        raise ValueError(f"remesh must be 'full' or 'patch'; got {remesh!r}")
+    parser.add_argument("--growth-remesh", choices=("full", "patch"), default=None,
+                        help="after an extension, mesh the whole domain again (full) or only a patch around the "
+                             "new segments, keeping the rest of the mesh (patch; docs/benchmarks.md, \"Remeshing: "
+                             f"local patches\"); default {remesh}, and full with --adapt")
+    parser.set_defaults(_remesh_default=remesh)
     parser.add_argument("--growth-patch-radius", type=float, default=6.0,
                         help="with --growth-remesh patch: the triangles within this distance of a new segment's "
                              "ends, in facet sizes h, and the too-coarse ones next to them, are meshed again "
@@ -232,6 +237,8 @@ def check_growth_arguments(parser, args):
     by_size = getattr(args, "_nucleation_by_size", None)
     if by_size is not None and args.growth_nucleation_cap is None:
         args.growth_nucleation_cap = by_size[1] if args.quick else by_size[0]
+    if args.growth_remesh is None:  # the scenario's default; adaptive meshes remesh the whole domain
+        args.growth_remesh = "full" if getattr(args, "adapt", None) is not None else args._remesh_default
     for name, ok, valid in _GROWTH_CHECKS:
         v = getattr(args, name)
         if v is not None and not ok(v):

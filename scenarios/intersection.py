@@ -271,7 +271,8 @@ def main(argv=None, regularized=None):
     cli.add_adapt_arguments(parser)
     cli.add_pressure_factor_argument(parser)
     # the network evolves (docs/model.md §6): the natural fracture's ends are tips, and fast tips branch
-    cli.add_growth_arguments(parser, natural_tips=True, branch_speed=BRANCH_SPEED)
+    # local remeshing around the new segments (docs/benchmarks.md, "Remeshing: local patches")
+    cli.add_growth_arguments(parser, natural_tips=True, branch_speed=BRANCH_SPEED, remesh="patch")
     # The freely grown crack reaches the natural fracture at ~710 µs (full size; ~780 µs at
     # --quick, Δa = 12 cm) and loads it from 771 µs (996 µs): 1.2 ms shows the load front
     # cross the natural fracture (paper fig. 8-9); --quick's 1.1 ms leaves the 50 µs after
