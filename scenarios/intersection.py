@@ -26,7 +26,8 @@
 # perforations 0.3 m long, the natural fracture at x = `--x-nf`; the default distance, 0.58 m
 # (0.52 m at `--quick`, whose coarser cracks grow later), makes the intersection happen at
 # roughly the paper's time with τ̃ = 30 µs on the intact paths: full size, 2 ranks, at
-# 771 µs with p_h = 15.5 MPa (the paper: ≈ 800 µs, ≈ 16 MPa; docs/studies/scenarios.md).
+# 775 µs with p_h = 15.6 MPa (771 µs, 15.5 MPa with --growth-remesh full; the paper: ≈ 800 µs,
+# ≈ 16 MPa; docs/studies/scenarios.md).
 # The natural fracture has its own τ̃ = 1 ms (`--nf-tau`): it is already debonded,
 # so τ̃ only sets its fracture scale δ̃, and with it the aperture δ̄'δ̃ = 27 µm over
 # which the pressure factor rises (eq. 15).  With the paths' 30 µs, δ̄'δ̃ would be
@@ -274,7 +275,7 @@ def main(argv=None, regularized=None):
     # local remeshing around the new segments (docs/benchmarks.md, "Remeshing: local patches")
     cli.add_growth_arguments(parser, natural_tips=True, branch_speed=BRANCH_SPEED, remesh="patch")
     # The freely grown crack reaches the natural fracture at ~710 µs (full size; ~780 µs at
-    # --quick, Δa = 12 cm) and loads it from 771 µs (996 µs): 1.2 ms shows the load front
+    # --quick, Δa = 12 cm) and loads it from 775 µs (996 µs): 1.2 ms shows the load front
     # cross the natural fracture (paper fig. 8-9); --quick's 1.1 ms leaves the 50 µs after
     # the intersection that the accuracy measures
     def name_of(args):
