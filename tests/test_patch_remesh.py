@@ -148,3 +148,25 @@ def test_size_law_point_query_equals_the_vectorised_law():
         assert np.array_equal(got[lo], sizes(xy))
     assert got[(-5.0, -5.0)].min() < 0.1 and got[(-5.0, -5.0)].max() == law.h_far  # graded, and far away
     assert np.all(got[(-20.0, -20.0)] == law.h_far)
+
+
+@pytest.mark.parametrize("default, argv, expected", [
+    ("patch", [], "patch"),  # the intersection scripts
+    ("patch", ["--adapt", "0.03"], "full"),  # adaptive meshes change the size field everywhere
+    ("patch", ["--growth-remesh", "full"], "full"),
+    ("full", [], "full"),  # the re-fracture
+    ("full", ["--growth-remesh", "patch"], "patch"),
+])
+def test_remesh_default_is_the_scenarios_and_full_with_adapt(default, argv, expected):
+    """The growth options take the scenario's remesh default; with --adapt and no explicit
+    choice it is the full remesh (a patch would be refused), and an explicit one is kept."""
+    from hydrofrac import cli
+    from hydrofrac.wellbore import Growth
+    parser = cli.scenario_parser("test")
+    cli.add_growth_arguments(parser, remesh=default)
+    cli.add_adapt_arguments(parser)
+    args = parser.parse_args(argv)
+    cli.check_growth_arguments(parser, args)
+    assert Growth.from_args(args).remesh == expected
+    with pytest.raises(ValueError, match="'full' or 'patch'"):
+        cli.add_growth_arguments(cli.scenario_parser("test"), remesh="local")
