@@ -23,6 +23,7 @@ from .forms import elastodynamics as ef
 #: an extension's power terms (:meth:`hydrofrac.interface.Interface.local_dissipation_rates`), in order
 DISSIPATION_TERMS = ("friction", "damage", "flux", "work_in")
 
+
 @dataclass
 class EnergyBudget:
     """Cumulative energy terms [J/m] relative to the initial stress state."""
