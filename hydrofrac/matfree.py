@@ -25,7 +25,7 @@ import functools
 import numpy as np
 from mpi4py import MPI
 
-from . import compat
+from . import compat, native
 from ._jit import HAVE_NUMBA, njit
 from .element import line_quadrature, triangle_quadrature
 from .riemann import bonded_jump_pt, boundary_pt
@@ -589,7 +589,7 @@ class MatrixFreeOperator:
                                        "terms do not apply")
         self.Jinv = np.ascontiguousarray(g.Jinv)
         self.absdet = np.ascontiguousarray(np.abs(g.detJ))
-        self.Minv_ref = solver.Mref_inv
+        self.Minv_ref = np.ascontiguousarray(solver.Mref_inv, dtype=float)
         self.invdet = 1.0 / self.absdet
         B = np.linalg.inv(solver.material_blocks)  # per cell, unscaled
         if np.any(B[:, :2, 2:]) or np.any(B[:, 2:, :2]) or np.any(B[:, 0, 1]) or np.any(B[:, 1, 0]):
@@ -658,6 +658,19 @@ class MatrixFreeOperator:
         self._R_clear = True
         self.Mref = np.ascontiguousarray(ref.mass())
         self.Bmat = solver.material_blocks
+        # the volume terms in C, in blocks of cells (hydrofrac/native.py) for a cell-contiguous
+        # space; otherwise, or with HYDROFRAC_KERNELS=numba, the numba kernel
+        self.kernels = native.backend() if self.contiguous else "numba"
+        self._cvolume = self._cfacets = None
+        if self.kernels == "c":
+            nk = self.fnodes.shape[1]
+            self._cvolume = native.VolumeKernel(nb, nk, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
+                                                self.Minv_ref, self.mat, self.Btab)
+            cp, cm = self.fcells[:, 0], self.fcells[:, 1]
+            coef, pair = native.bonded_coefficients(self.Zd[cp], self.Zd[cm], self.Zs[cp], self.Zs[cm],
+                                                    bonded_jump_pt)
+            self._cfacets = native.FacetKernel(nb, nk, self.dofs.shape[0], self.nowned, self.fcells, self.fcodes,
+                                               self.normal, self.length, self.fnodes, self.Mf, coef, pair)
 
     def set_boundary(self, facets, bc_of, bcs=()):
         """The exterior facets of the owned cells, with the boundary condition of each
@@ -732,8 +745,7 @@ class MatrixFreeOperator:
         """out = D x, the cell-local strong-form operator (the volume terms without any facet
         flux: the time derivative of each cell's polynomial as if it stood alone, exact for
         P_p data); ``x``, ``out``: owned values."""
-        self._volume(out, self._Rzero, x, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
-                     self.Minv_ref, self.mat, self.Btab)
+        self._apply_volume(out, self._Rzero, x)
 
     def ader_predictor(self, x, I, dt, order):
         """I = sum_{k=0..order} dt^(k+1)/(k+1)! D^k x (:meth:`local_derivative`), the time
@@ -809,8 +821,11 @@ class MatrixFreeOperator:
         if not self._R_clear:  # finish() clears R as it reads it; after an interrupted stage, here
             R[:] = 0.0
         self._R_clear = False
-        self._facets(R, xloc, self.dofs, self.fcells, self.fcodes, self.normal, self.length, self.fnodes, self.Mf,
-                     self.Zd, self.Zs, self.nowned)
+        if self._cfacets is not None:
+            self._cfacets(R, xloc)
+        else:
+            self._facets(R, xloc, self.dofs, self.fcells, self.fcodes, self.normal, self.length, self.fnodes,
+                         self.Mf, self.Zd, self.Zs, self.nowned)
         if self.bcells.size:
             if data:
                 self.boundary_data(t)
@@ -819,6 +834,13 @@ class MatrixFreeOperator:
 
     def finish(self, xloc, out):
         """out (owned values) = M^{-1} (R + volume terms)."""
-        self._volume(out, self.R, xloc, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
-                     self.Minv_ref, self.mat, self.Btab)
+        self._apply_volume(out, self.R, xloc)
         self._R_clear = True
+
+    def _apply_volume(self, out, R, X):
+        """out = M^{-1}(R + volume terms of X) on the owned cells; R cleared."""
+        if self._cvolume is not None:
+            self._cvolume(out, R, X)
+        else:
+            self._volume(out, R, X, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
+                         self.Minv_ref, self.mat, self.Btab)

@@ -8,7 +8,7 @@ from typing import Dict
 
 import numpy as np
 
-from . import compat
+from . import compat, native
 
 
 def build_summary(problem, name: str, wall: float, work: float, steps_run: int, remesh_info, accuracy: Dict,
@@ -27,6 +27,9 @@ def build_summary(problem, name: str, wall: float, work: float, steps_run: int, 
         "output": outputs,
     })
     summary["cost_us"] = unit_costs(solver, steps_run)
+    mf = getattr(solver, "matfree", None)
+    summary["kernels"] = ("assembled operator (PETSc)" if mf is None else
+                          native.describe() if mf.kernels == "c" else "numba")
     if remesh_info is not None:
         t_rm = solver.timers.t.get("remesh", 0.0)
         setup = comm.allreduce(getattr(solver, "remesh_setup_s", 0.0), op=compat.MPI.MAX)
@@ -84,6 +87,8 @@ def print_summary(s: Dict, file=sys.stdout):
         if "interface_per_facet_stage" in c:
             line += (f", interface kernel {c['interface_per_facet_stage']:.3g} us per crack facet*stage "
                      f"({c['crack_facets']} crack facets)")
+        if "kernels" in s:
+            line += f"; kernels: {s['kernels']}"
         lines.append(line)
     if "contact" in s:
         c = s["contact"]

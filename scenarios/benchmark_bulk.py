@@ -57,7 +57,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
+import os
 import time
 from pathlib import Path
 
@@ -239,6 +241,20 @@ def unit_square(comm, N):
     return compat.create_rectangle(comm, (0.0, 0.0), (1.0, 1.0), N, N)
 
 
+@contextlib.contextmanager
+def kernels(name):
+    """HYDROFRAC_KERNELS = ``name`` for the solvers made inside (hydrofrac/native.py)."""
+    old = os.environ.get("HYDROFRAC_KERNELS")
+    os.environ["HYDROFRAC_KERNELS"] = name
+    try:
+        yield
+    finally:
+        if old is None:
+            del os.environ["HYDROFRAC_KERNELS"]
+        else:
+            os.environ["HYDROFRAC_KERNELS"] = old
+
+
 def timed(comm, fn, count):
     comm.barrier()
     t0 = time.perf_counter()
@@ -415,6 +431,14 @@ def main(argv=None):
                           + (f"; {r['flops_per_dof_stage']:.0f} flop/DOF*stage, {r['fraction_of_peak_flops']:.3f} "
                              "of the peak" if "flops_per_dof_stage" in r else ""))
             log(comm, f"[bench]           matrix-free / assembled step rate: {pair['matfree'] / pair['assembled']:.2f}")
+            # the same matrix-free step with the numba kernels alone (the C kernels' gain, side by side)
+            with kernels("numba"):
+                r = throughput_case(comm, p, N, bandwidth, "matfree", mesh, peak)
+            r["operator"] = "matfree numba"
+            rows.append(r)
+            log(comm, f"[bench]           C kernels / numba kernels step rate: "
+                      f"{pair['matfree'] / r['dof_stages_per_s']:.2f} (numba: {r['dof_stages_per_s']:.3g} DOF*stages/s"
+                      + (f", {r['fraction_of_peak_flops']:.3f} of the peak)" if "fraction_of_peak_flops" in r else ")"))
             r = throughput_case(comm, p, N, bandwidth, "matfree", mesh, peak, scheme="ader")
             rows.append(r)
             rk4 = next(q for q in rows if q["operator"] == "matfree" and q["p"] == p and q["N"] == N)

@@ -1,0 +1,209 @@
+"""C kernels, compiled at first use with the machine's C compiler (docs/benchmarks.md,
+"Volume kernels in C").
+
+The hot loop of the matrix-free operator, the volume terms with the inverse mass
+and the interior facets' upwind fluxes (``hydrofrac/volume.c``), run in blocks of cells (facets)
+with the cells in the vector lanes: that is what lets the compiler use the SIMD units, which
+the numba kernels' cell-by-cell loops do not.  The other kernels stay in numba.
+The compiler is the one DOLFINx already needs for its form compiler (Debian's libdolfinx-dev
+depends on g++); ``$CC`` names another.
+
+Which kernels run: ``HYDROFRAC_KERNELS`` = ``c`` (the default) or ``numba`` (the numba kernels
+alone).  With ``c``, a compiler that fails is an error that says so; nothing falls back
+silently.  The summary names the kernels a run used.
+
+Libraries are cached in ``$HYDROFRAC_CACHE`` (default ``~/.cache/hydrofrac``), one per source,
+flags, compiler and CPU (``-march=native``), written atomically, so ranks and runs that start
+together are safe.
+"""
+from __future__ import annotations
+
+import ctypes
+import functools
+import hashlib
+import os
+import platform
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+#: the kernel sets ``HYDROFRAC_KERNELS`` may name
+BACKENDS = ("c", "numba")
+#: cells per block (vector lanes) of the C volume kernel
+LANES = 4
+CFLAGS = ("-O3", "-march=native", "-std=c99", "-shared", "-fPIC")
+_SOURCE = Path(__file__).with_name("volume.c")
+
+
+class NativeError(RuntimeError):
+    """The C kernels could not be built or loaded."""
+
+
+def backend() -> str:
+    """The kernels to use, from ``HYDROFRAC_KERNELS`` (default ``c``)."""
+    b = os.environ.get("HYDROFRAC_KERNELS", "c").strip().lower()
+    if b not in BACKENDS:
+        raise ValueError(f"HYDROFRAC_KERNELS must be one of {', '.join(BACKENDS)}; got "
+                         f"{os.environ['HYDROFRAC_KERNELS']!r}")
+    return b
+
+
+def _compiler():
+    return os.environ.get("CC", "cc")
+
+
+@functools.lru_cache(maxsize=None)
+def _identity() -> str:
+    """What a cached library depends on besides its source: compiler, its version, CPU."""
+    cc = _compiler()
+    try:
+        version = subprocess.run([cc, "--version"], capture_output=True, text=True, timeout=60).stdout
+    except (OSError, subprocess.SubprocessError) as err:
+        raise NativeError(f"no C compiler {cc!r} ({err}); install one (gcc), set CC, or run with "
+                          "HYDROFRAC_KERNELS=numba") from None
+    cpu = ""
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = "".join(line for line in f if line.startswith(("model name", "flags")))[:4096]
+    except OSError:
+        pass
+    return "\n".join([cc, version, platform.machine(), cpu, " ".join(CFLAGS)])
+
+
+def _cache_dir() -> Path:
+    d = os.environ.get("HYDROFRAC_CACHE")
+    if d:
+        path = Path(d)
+        path.mkdir(parents=True, exist_ok=True)  # a set cache that cannot be made is an error
+        return path
+    path = Path.home() / ".cache" / "hydrofrac"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        return path
+    except OSError:  # (a home without write permission: a per-user folder in the temp dir)
+        path = Path(tempfile.gettempdir()) / f"hydrofrac-{os.getuid()}"
+        path.mkdir(parents=True, exist_ok=True)
+        return path
+
+
+@functools.lru_cache(maxsize=None)
+def _library(defines: tuple) -> ctypes.CDLL:
+    source = _SOURCE.read_text()
+    flags = list(CFLAGS) + [f"-D{k}={v}" for k, v in defines]
+    key = hashlib.sha256("\n".join([source, " ".join(flags), _identity()]).encode()).hexdigest()[:20]
+    lib = _cache_dir() / f"{_SOURCE.stem}_{key}.so"
+    if not lib.exists():
+        tmp = lib.with_name(f"{lib.name}.{os.getpid()}.tmp")
+        cmd = [_compiler(), *flags, str(_SOURCE), "-o", str(tmp)]
+        res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+        if res.returncode != 0:
+            tmp.unlink(missing_ok=True)
+            raise NativeError(f"compiling {_SOURCE.name} failed ({' '.join(cmd)}):\n{res.stderr.strip()}\n"
+                              "Fix the compiler, or run with HYDROFRAC_KERNELS=numba")
+        os.replace(tmp, lib)
+    return ctypes.CDLL(str(lib))
+
+
+def describe() -> str:
+    """The summary's words for the C kernels."""
+    return f"C volume and facet kernels ({_compiler()} {' '.join(CFLAGS[:2])}, {LANES} cells per block) + numba"
+
+
+def _check(name, arrays):
+    """Raise unless each (array, dtype, shape or None) is contiguous with that dtype and shape:
+    the kernels get raw pointers."""
+    for a, dt, shape in arrays:
+        if a.dtype != dt or not a.flags.c_contiguous or (shape is not None and a.shape != shape):
+            raise NativeError(f"the C {name} kernel got an array of {a.dtype} {a.shape} (contiguous: "
+                              f"{a.flags.c_contiguous}); expected {np.dtype(dt)} {shape}")
+
+
+def _function(nb, nk, name, argtypes):
+    fn = getattr(_library((("NB", int(nb)), ("NK", int(nk)), ("W", LANES))), name)
+    fn.argtypes, fn.restype = argtypes, None
+    return fn
+
+
+_P, _N = ctypes.c_void_p, ctypes.c_long
+
+
+class VolumeKernel:
+    """The C ``volume_and_inverse`` for ``nb`` basis functions per cell (``nk`` per facet)
+    and ``n`` owned cells, bound to one operator's constant arrays: ``kernel(out, R, X)``
+    computes out (owned values) = M^{-1}(R + volume terms of X) and clears R, as the numba
+    kernel does for a cell-contiguous space."""
+
+    def __init__(self, nb: int, nk: int, n: int, S0, S1, Jinv, invdet, Minv_ref, mat, Btab):
+        self._fn = _function(nb, nk, "volume_and_inverse", [_P, _P, _P, _N, _P, _P, _P, _P, _P, _P, _P])
+        n = int(n)
+        _check("volume", [(S0, np.float64, (nb, nb)), (S1, np.float64, (nb, nb)), (Jinv, np.float64, None),
+                          (invdet, np.float64, None), (Minv_ref, np.float64, (nb, nb)), (mat, np.int32, None),
+                          (Btab, np.float64, None)])
+        if Jinv.shape[0] < n or invdet.shape[0] < n or mat.shape[0] < n or Btab.shape[1:] != (11,) \
+                or (n and int(mat[:n].max()) >= Btab.shape[0]):
+            raise NativeError("the C volume kernel's cell data do not cover the owned cells")
+        self._arrays = (S0, S1, Jinv, invdet, Minv_ref, mat, Btab)  # (kept alive: the pointers below)
+        self._n, self._size, self._Rshape = n, n * nb * 5, (n, nb, 5)
+        self._const = tuple(a.ctypes.data for a in self._arrays)
+
+    def __call__(self, out, R, X):
+        _check("volume", [(R, np.float64, self._Rshape)])
+        _check_values(out, X, self._size, "volume")
+        self._fn(out.ctypes.data, R.ctypes.data, X.ctypes.data, self._n, *self._const)
+
+
+def _check_values(out, X, size, name):
+    for a in (out, X):
+        if a.dtype != np.float64 or not a.flags.c_contiguous or a.size < size:
+            raise NativeError(f"the C {name} kernel needs contiguous float64 arrays of >= {size} values; got "
+                              f"{a.dtype} {a.shape}")
+    if not out.flags.writeable:
+        raise NativeError(f"the C {name} kernel's output array is read-only")
+
+
+class FacetKernel:
+    """The C ``facet_fluxes``: ``kernel(R, X)`` adds the upwind flux corrections of the
+    listed interior facets to R on their owned sides, as the numba kernel does for a
+    cell-contiguous space.  ``coef`` (pairs, 16) and ``pair`` (facets,): the bonded Riemann
+    solution's coefficients per impedance pair (:func:`bonded_coefficients`)."""
+
+    def __init__(self, nb: int, nk: int, ncells: int, nowned: int, fcells, fcodes, normal, length, fnodes, Mf,
+                 coef, pair):
+        self._fn = _function(nb, nk, "facet_fluxes", [_P, _P, _N, _P, _P, _P, _P, _P, _P, _P, _P, _N])
+        nf = fcells.shape[0]
+        _check("facet", [(fcells, np.int64, (nf, 2)), (fcodes, np.int64, (nf, 2)), (normal, np.float64, (nf, 2)),
+                         (length, np.float64, (nf,)), (fnodes, np.int64, (9, nk)), (Mf, np.float64, (nk, nk)),
+                         (coef, np.float64, None), (pair, np.int32, (nf,))])
+        if nf and (fcells.max() >= ncells or fcells.min() < 0 or fcodes.min() < 0 or fcodes.max() > 8
+                   or fnodes.max() >= nb or pair.max() >= coef.shape[0] or coef.shape[1:] != (16,)):
+            raise NativeError("the C facet kernel's facet data point outside its cells")
+        self._arrays = (fcells, fcodes, normal, length, fnodes, Mf, coef, pair)
+        self._nf, self._nowned = nf, int(nowned)
+        self._size, self._Rshape = int(ncells) * nb * 5, (int(nowned), nb, 5)
+        self._const = tuple(a.ctypes.data for a in self._arrays)
+
+    def __call__(self, R, X):
+        _check("facet", [(R, np.float64, self._Rshape)])
+        _check_values(R.reshape(-1), X, 0, "facet")
+        if X.size < self._size:
+            raise NativeError(f"the C facet kernel needs the values of all {self._size // 5} nodes, ghosts "
+                              f"included; got {X.size // 5}")
+        self._fn(R.ctypes.data, X.ctypes.data, self._nf, *self._const, self._nowned)
+
+
+def bonded_coefficients(Zpn, Zmn, Zpt, Zmt, bonded_jump_pt):
+    """(coef (pairs, 16), pair (facets,) int32): the coefficients of the jumps [v] and [s] in
+    ``bonded_jump_pt``'s four corrections, for the normal (impedances Zpn, Zmn) and the
+    tangential component (Zpt, Zmt) of each distinct impedance pair, from the formula itself
+    on unit jumps (it is linear in them)."""
+    quad = np.stack([Zpn, Zmn, Zpt, Zmt], axis=1)
+    if quad.shape[0] == 0:
+        return np.zeros((1, 16)), np.zeros(0, dtype=np.int32)
+    table, pair = np.unique(quad, axis=0, return_inverse=True)
+    coef = np.empty((table.shape[0], 16))
+    for q, (zpn, zmn, zpt, zmt) in enumerate(table):
+        coef[q] = (bonded_jump_pt(1.0, 0.0, zpn, zmn) + bonded_jump_pt(0.0, 1.0, zpn, zmn)
+                   + bonded_jump_pt(1.0, 0.0, zpt, zmt) + bonded_jump_pt(0.0, 1.0, zpt, zmt))
+    return np.ascontiguousarray(coef), np.ascontiguousarray(pair.reshape(-1), dtype=np.int32)

@@ -1,0 +1,199 @@
+/* The volume terms and the inverse mass of the matrix-free DG operator, in blocks of W cells
+ * (hydrofrac/native.py compiles it with NB, the basis functions per cell, as a constant).
+ *
+ * It computes what the numba kernel volume_and_inverse in hydrofrac/matfree.py computes for a
+ * cell-contiguous DG space (cell c's values at X[5 NB c .. 5 NB (c+1)), node-major, 5 fields per
+ * node):  out[c] = M_c^{-1} (R[c] + volume terms of X[c]),  and R[c] = 0 after.
+ *
+ * The difference is the loop order.  The numba kernel works cell by cell; its loops over 5
+ * fields and NB nodes are unrolled but scalar.  Here the W cells of a block sit in the innermost
+ * loop index ("lanes"), so every multiply-add of the dense reference products (S_r u,
+ * Minv_ref r) is one vector operation over W cells.  W = 4 (one 256-bit vector of doubles)
+ * measured fastest here against W = 2, 8 and 16 (docs/benchmarks.md, "Volume kernels in C").
+ * Each lane does the same arithmetic as the numba kernel in the same order; the two agree to
+ * round-off (tests/test_matfree.py).
+ */
+#ifndef NB
+#error "compile with -DNB=<basis functions per cell>"
+#endif
+#ifndef W
+#define W 4
+#endif
+/* at P1 (NB = 3) the gradients are constant: one row of S_r serves every node */
+#define ROWS (NB == 3 ? 1 : NB)
+
+void volume_and_inverse(double *restrict out, double *restrict R, const double *restrict X, long ncells,
+                        const double *restrict S0, const double *restrict S1, const double *restrict Jinv,
+                        const double *restrict invdet, const double *restrict Minv, const int *restrict mat,
+                        const double *restrict Btab)
+{
+    for (long c0 = 0; c0 < ncells; c0 += W) {
+        const long w = ncells - c0 < W ? ncells - c0 : W;  /* cells in this block */
+        double u[NB][5][W], g0[ROWS][5][W], g1[ROWS][5][W], r[NB][5][W];
+        double j00[W], j01[W], j10[W], j11[W], e[W];
+        /* a short last block repeats its first cell in the empty lanes (computed, not stored) */
+        for (long l = 0; l < W; l++) {
+            const long c = c0 + (l < w ? l : 0);
+            for (int j = 0; j < NB; j++)
+                for (int k = 0; k < 5; k++) u[j][k][l] = X[5 * (NB * c + j) + k];
+            j00[l] = Jinv[4 * c];
+            j01[l] = Jinv[4 * c + 1];
+            j10[l] = Jinv[4 * c + 2];
+            j11[l] = Jinv[4 * c + 3];
+            e[l] = invdet[c];
+        }
+        /* reference derivatives: g_r = S_r u */
+        for (int i = 0; i < ROWS; i++)
+            for (int k = 0; k < 5; k++) {
+                double s0[W] = {0}, s1[W] = {0};
+                for (int j = 0; j < NB; j++) {
+                    const double a = S0[i * NB + j], b = S1[i * NB + j];
+                    for (int l = 0; l < W; l++) {
+                        s0[l] += a * u[j][k][l];
+                        s1[l] += b * u[j][k][l];
+                    }
+                }
+                for (int l = 0; l < W; l++) {
+                    g0[i][k][l] = s0[l];
+                    g1[i][k][l] = s1[l];
+                }
+            }
+        /* r = R / |det J| + volume terms (d/dx = Jinv[0,0] d/dX0 + Jinv[1,0] d/dX1, ...) */
+        for (int i = 0; i < NB; i++) {
+            const int iv = ROWS == NB ? i : 0;
+            for (long l = 0; l < W; l++) {
+                const long c = c0 + (l < w ? l : 0);
+                const double *Rc = R + 5 * (NB * c + i);
+                const double dx_vx = j00[l] * g0[iv][0][l] + j10[l] * g1[iv][0][l];
+                const double dy_vx = j01[l] * g0[iv][0][l] + j11[l] * g1[iv][0][l];
+                const double dx_vy = j00[l] * g0[iv][1][l] + j10[l] * g1[iv][1][l];
+                const double dy_vy = j01[l] * g0[iv][1][l] + j11[l] * g1[iv][1][l];
+                const double dx_sxx = j00[l] * g0[iv][2][l] + j10[l] * g1[iv][2][l];
+                const double dy_syy = j01[l] * g0[iv][3][l] + j11[l] * g1[iv][3][l];
+                const double dx_sxy = j00[l] * g0[iv][4][l] + j10[l] * g1[iv][4][l];
+                const double dy_sxy = j01[l] * g0[iv][4][l] + j11[l] * g1[iv][4][l];
+                r[i][0][l] = e[l] * Rc[0] + (dx_sxx + dy_sxy);
+                r[i][1][l] = e[l] * Rc[1] + (dx_sxy + dy_syy);
+                r[i][2][l] = e[l] * Rc[2] + dx_vx;
+                r[i][3][l] = e[l] * Rc[3] + dy_vy;
+                r[i][4][l] = e[l] * Rc[4] + (dy_vx + dx_vy);
+            }
+        }
+        /* cleared for the next stage (saves a separate pass) */
+        for (long m = 5 * NB * c0; m < 5 * NB * (c0 + w); m++) R[m] = 0.0;
+        /* M_c^{-1} = Minv_ref kron B^{-1} / |det J| (the 1/|det J| is in r already) */
+        for (int a = 0; a < NB; a++) {
+            double t[5][W];
+            for (int k = 0; k < 5; k++) {
+                double acc[W] = {0};
+                for (int b = 0; b < NB; b++) {
+                    const double m = Minv[a * NB + b];
+                    for (int l = 0; l < W; l++) acc[l] += m * r[b][k][l];
+                }
+                for (int l = 0; l < W; l++) t[k][l] = acc[l];
+            }
+            for (long l = 0; l < w; l++) {
+                const double *B = Btab + 11 * mat[c0 + l];  /* 1/rho, 1/rho, the 3x3 stiffness block */
+                double *o = out + 5 * (NB * (c0 + l) + a);
+                o[0] = B[0] * t[0][l];
+                o[1] = B[1] * t[1][l];
+                o[2] = B[2] * t[2][l] + B[3] * t[3][l] + B[4] * t[4][l];
+                o[3] = B[5] * t[2][l] + B[6] * t[3][l] + B[7] * t[4][l];
+                o[4] = B[8] * t[2][l] + B[9] * t[3][l] + B[10] * t[4][l];
+            }
+        }
+    }
+}
+
+/* The interior facets' upwind flux corrections, in blocks of W facets: what the numba kernel
+ * facet_fluxes in hydrofrac/matfree.py computes for a cell-contiguous space.  NK = nodes per
+ * facet (p + 1).
+ *
+ * The bonded Riemann solution is linear in the jumps [v] = v- - v+ and [s] = s- - s+ of each
+ * component, with coefficients that depend on the two sides' impedances only.  Those come from
+ * hydrofrac.riemann.bonded_jump_pt (the one place of the formula), evaluated once per distinct
+ * impedance pair on unit jumps: coef[pair[f]] holds, for the normal then the tangential
+ * component, the coefficients of [v] in (s_B - s+, v_B - v+, s_B - s-, v_B - v-), then those
+ * of [s].  The scatter into R runs lane by lane (two facets of a block may share a cell).
+ */
+#ifdef NK
+void facet_fluxes(double *restrict R, const double *restrict X, long nfacets, const long *restrict fcells,
+                  const long *restrict fcodes, const double *restrict normal, const double *restrict length,
+                  const long *restrict fnodes, const double *restrict Mf, const double *restrict coef,
+                  const int *restrict pair, long nowned)
+{
+    for (long f0 = 0; f0 < nfacets; f0 += W) {
+        const long w = nfacets - f0 < W ? nfacets - f0 : W;
+        double Fp[NK][5][W], Fm[NK][5][W], Gp[NK][5][W], Gm[NK][5][W];
+        for (int k = 0; k < NK; k++) {
+            for (long l = 0; l < W; l++) {
+                const long f = f0 + (l < w ? l : 0);
+                const long cp = fcells[2 * f], cm = fcells[2 * f + 1];
+                const double *xp = X + 5 * (NB * cp + fnodes[NK * fcodes[2 * f] + k]);
+                const double *xm = X + 5 * (NB * cm + fnodes[NK * fcodes[2 * f + 1] + k]);
+                const double nx = normal[2 * f], ny = normal[2 * f + 1];
+                const double *cf = coef + 16 * pair[f];
+                /* the jumps in the facet frame (n, t = (-ny, nx)), as _node_jumps */
+                const double j0 = xm[0] - xp[0], j1 = xm[1] - xp[1], j2 = xm[2] - xp[2], j3 = xm[3] - xp[3],
+                             j4 = xm[4] - xp[4];
+                const double tx = j2 * nx + j4 * ny, ty = j4 * nx + j3 * ny;
+                const double jvn = j0 * nx + j1 * ny, jvt = -j0 * ny + j1 * nx;
+                const double jsn = tx * nx + ty * ny, jst = -tx * ny + ty * nx;
+                const double dspn = cf[0] * jvn + cf[4] * jsn, dvpn = cf[1] * jvn + cf[5] * jsn;
+                const double dsmn = cf[2] * jvn + cf[6] * jsn, dvmn = cf[3] * jvn + cf[7] * jsn;
+                const double dspt = cf[8] * jvt + cf[12] * jst, dvpt = cf[9] * jvt + cf[13] * jst;
+                const double dsmt = cf[10] * jvt + cf[14] * jst, dvmt = cf[11] * jvt + cf[15] * jst;
+                /* side +: outward normal n */
+                double dsx = dspn * nx - dspt * ny, dsy = dspn * ny + dspt * nx;
+                double dvx = dvpn * nx - dvpt * ny, dvy = dvpn * ny + dvpt * nx;
+                Fp[k][0][l] = dsx;
+                Fp[k][1][l] = dsy;
+                Fp[k][2][l] = dvx * nx;
+                Fp[k][3][l] = dvy * ny;
+                Fp[k][4][l] = dvx * ny + dvy * nx;
+                /* side -: outward normal -n and traction -s*, so both terms change sign */
+                dsx = -(dsmn * nx - dsmt * ny);
+                dsy = -(dsmn * ny + dsmt * nx);
+                dvx = -(dvmn * nx - dvmt * ny);
+                dvy = -(dvmn * ny + dvmt * nx);
+                Fm[k][0][l] = dsx;
+                Fm[k][1][l] = dsy;
+                Fm[k][2][l] = dvx * nx;
+                Fm[k][3][l] = dvy * ny;
+                Fm[k][4][l] = dvx * ny + dvy * nx;
+            }
+        }
+        /* the facet mass matrix, times the length */
+        for (int i = 0; i < NK; i++)
+            for (int m = 0; m < 5; m++) {
+                double ap[W] = {0}, am[W] = {0};
+                for (int k = 0; k < NK; k++) {
+                    const double mf = Mf[i * NK + k];
+                    for (int l = 0; l < W; l++) {
+                        ap[l] += mf * Fp[k][m][l];
+                        am[l] += mf * Fm[k][m][l];
+                    }
+                }
+                for (int l = 0; l < W; l++) {
+                    Gp[i][m][l] = ap[l];
+                    Gm[i][m][l] = am[l];
+                }
+            }
+        for (long l = 0; l < w; l++) {
+            const long f = f0 + l;
+            const long cp = fcells[2 * f], cm = fcells[2 * f + 1];
+            const double L = length[f];
+            if (cp < nowned)
+                for (int i = 0; i < NK; i++) {
+                    double *r = R + 5 * (NB * cp + fnodes[NK * fcodes[2 * f] + i]);
+                    for (int m = 0; m < 5; m++) r[m] += L * Gp[i][m][l];
+                }
+            if (cm < nowned)
+                for (int i = 0; i < NK; i++) {
+                    double *r = R + 5 * (NB * cm + fnodes[NK * fcodes[2 * f + 1] + i]);
+                    for (int m = 0; m < 5; m++) r[m] += L * Gm[i][m][l];
+                }
+        }
+    }
+}
+#endif
