@@ -661,7 +661,7 @@ class MatrixFreeOperator:
         # the volume terms in C, in blocks of cells (hydrofrac/native.py) for a cell-contiguous
         # space; otherwise, or with HYDROFRAC_KERNELS=numba, the numba kernel
         self.kernels = native.backend() if self.contiguous else "numba"
-        self._cvolume = self._cfacets = None
+        self._cvolume = self._cfacets = self._cader = None  # (ADER's when first used)
         if self.kernels == "c":
             nk = self.fnodes.shape[1]
             self._cvolume = native.VolumeKernel(nb, nk, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
@@ -762,8 +762,15 @@ class MatrixFreeOperator:
         :meth:`begin` (the ADER corrector), then I = the predictor's integral from the new x
         over the next step of length dt (:meth:`ader_predictor`), in one compiled pass;
         ``x``, ``I``: owned values."""
-        self._corrector(x, I, self.R, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
-                        self.Minv_ref, self.mat, self.Btab, *self._derivatives(), float(dt), int(order))
+        if self.kernels == "c":
+            if self._cader is None:
+                nb, nk = self.dofs.shape[1], self.fnodes.shape[1]
+                self._cader = native.AderKernel(nb, nk, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
+                                                self.Minv_ref, self.mat, self.Btab, *self._derivatives())
+            self._cader(x, I, self.R, dt, order)
+        else:
+            self._corrector(x, I, self.R, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
+                            self.Minv_ref, self.mat, self.Btab, *self._derivatives(), float(dt), int(order))
         self._R_clear = True
 
     def _derivatives(self):

@@ -2,7 +2,7 @@
 "Volume kernels in C").
 
 The hot loop of the matrix-free operator, the volume terms with the inverse mass
-and the interior facets' upwind fluxes (``hydrofrac/volume.c``), run in blocks of cells (facets)
+the interior facets' upwind fluxes and ADER's corrector (``hydrofrac/volume.c``), run in blocks of cells (facets)
 with the cells in the vector lanes: that is what lets the compiler use the SIMD units, which
 the numba kernels' cell-by-cell loops do not.  The other kernels stay in numba.
 The compiler is the one DOLFINx already needs for its form compiler (Debian's libdolfinx-dev
@@ -108,7 +108,7 @@ def _library(defines: tuple) -> ctypes.CDLL:
 
 def describe() -> str:
     """The summary's words for the C kernels."""
-    return f"C volume and facet kernels ({_compiler()} {' '.join(CFLAGS[:2])}, {LANES} cells per block) + numba"
+    return f"C volume, facet and ADER kernels ({_compiler()} {' '.join(CFLAGS[:2])}, {LANES} cells per block) + numba"
 
 
 def _check(name, arrays):
@@ -152,6 +152,26 @@ class VolumeKernel:
         _check("volume", [(R, np.float64, self._Rshape)])
         _check_values(out, X, self._size, "volume")
         self._fn(out.ctypes.data, R.ctypes.data, X.ctypes.data, self._n, *self._const)
+
+
+class AderKernel(VolumeKernel):
+    """The C ``ader_corrector`` (ADER's corrector and next predictor), bound to the same
+    constant arrays as :class:`VolumeKernel` plus the nodal derivative matrices D0, D1:
+    ``kernel(x, I, R, dt, order)``."""
+
+    def __init__(self, nb: int, nk: int, n: int, S0, S1, Jinv, invdet, Minv_ref, mat, Btab, D0, D1):
+        super().__init__(nb, nk, n, S0, S1, Jinv, invdet, Minv_ref, mat, Btab)
+        _check("ADER", [(D0, np.float64, (nb, nb)), (D1, np.float64, (nb, nb))])
+        self._fn = _function(nb, nk, "ader_corrector", [_P, _P, _P, _N] + [_P] * 9 + [ctypes.c_double, _N])
+        self._arrays += (D0, D1)
+        self._const = tuple(a.ctypes.data for a in self._arrays)
+
+    def __call__(self, x, I, R, dt, order):
+        _check("ADER", [(R, np.float64, self._Rshape)])
+        _check_values(x, I, self._size, "ADER")
+        if not I.flags.writeable:
+            raise NativeError("the C ADER kernel's predictor array is read-only")
+        self._fn(x.ctypes.data, I.ctypes.data, R.ctypes.data, self._n, *self._const, float(dt), int(order))
 
 
 def _check_values(out, X, size, name):

@@ -197,3 +197,111 @@ void facet_fluxes(double *restrict R, const double *restrict X, long nfacets, co
     }
 }
 #endif
+
+/* ADER's corrector and next predictor, in blocks of W cells: what the numba kernel ader_corrector
+ * in hydrofrac/matfree.py computes for a cell-contiguous space.  Per cell: x += M_c^{-1} (R[c] +
+ * volume terms of I) (R[c] cleared), then I = sum_{k=0..order} dt^(k+1)/(k+1)! D^k x, D the
+ * cell-local strong-form operator with the nodal derivative matrices D_r = Minv_ref S_r. */
+void ader_corrector(double *restrict x, double *restrict I, double *restrict R, long ncells,
+                    const double *restrict S0, const double *restrict S1, const double *restrict Jinv,
+                    const double *restrict invdet, const double *restrict Minv, const int *restrict mat,
+                    const double *restrict Btab, const double *restrict D0, const double *restrict D1, double dt,
+                    long order)
+{
+    for (long c0 = 0; c0 < ncells; c0 += W) {
+        const long w = ncells - c0 < W ? ncells - c0 : W;
+        double u[NB][5][W], g0[ROWS][5][W], g1[ROWS][5][W], r[NB][5][W], acc[NB][5][W];
+        double j00[W], j01[W], j10[W], j11[W], e[W], Bl[11][W];
+        for (long l = 0; l < W; l++) {
+            const long c = c0 + (l < w ? l : 0);
+            for (int j = 0; j < NB; j++)
+                for (int k = 0; k < 5; k++) u[j][k][l] = I[5 * (NB * c + j) + k];
+            j00[l] = Jinv[4 * c];
+            j01[l] = Jinv[4 * c + 1];
+            j10[l] = Jinv[4 * c + 2];
+            j11[l] = Jinv[4 * c + 3];
+            e[l] = invdet[c];
+            for (int q = 0; q < 11; q++) Bl[q][l] = Btab[11 * mat[c] + q];
+        }
+        double coef = dt;
+        for (long m = 0; m <= order; m++) {
+            const double *A0 = m == 0 ? S0 : D0, *A1 = m == 0 ? S1 : D1;
+            for (int i = 0; i < ROWS; i++)
+                for (int k = 0; k < 5; k++) {
+                    double s0[W] = {0}, s1[W] = {0};
+                    for (int j = 0; j < NB; j++) {
+                        const double a = A0[i * NB + j], b = A1[i * NB + j];
+                        for (int l = 0; l < W; l++) {
+                            s0[l] += a * u[j][k][l];
+                            s1[l] += b * u[j][k][l];
+                        }
+                    }
+                    for (int l = 0; l < W; l++) {
+                        g0[i][k][l] = s0[l];
+                        g1[i][k][l] = s1[l];
+                    }
+                }
+            /* r = the strong-form volume terms of u (row 0 copied where the rows are equal) */
+            for (int i = 0; i < NB; i++) {
+                const int iv = ROWS == NB ? i : 0;
+                for (int l = 0; l < W; l++) {
+                    r[i][0][l] = j00[l] * g0[iv][2][l] + j10[l] * g1[iv][2][l] + j01[l] * g0[iv][4][l]
+                                 + j11[l] * g1[iv][4][l];
+                    r[i][1][l] = j00[l] * g0[iv][4][l] + j10[l] * g1[iv][4][l] + j01[l] * g0[iv][3][l]
+                                 + j11[l] * g1[iv][3][l];
+                    r[i][2][l] = j00[l] * g0[iv][0][l] + j10[l] * g1[iv][0][l];
+                    r[i][3][l] = j01[l] * g0[iv][1][l] + j11[l] * g1[iv][1][l];
+                    r[i][4][l] = j01[l] * g0[iv][0][l] + j11[l] * g1[iv][0][l] + j00[l] * g0[iv][1][l]
+                                 + j10[l] * g1[iv][1][l];
+                }
+            }
+            double (*src)[5][W] = r;
+            if (m == 0) { /* M_c^-1 (R[c] + volume terms): first Minv_ref, into u */
+                for (int i = 0; i < NB; i++)
+                    for (long l = 0; l < W; l++) {
+                        const long c = c0 + (l < w ? l : 0);
+                        for (int k = 0; k < 5; k++) r[i][k][l] += e[l] * R[5 * (NB * c + i) + k];
+                    }
+                for (long m2 = 5 * NB * c0; m2 < 5 * NB * (c0 + w); m2++) R[m2] = 0.0;
+                for (int a = 0; a < NB; a++)
+                    for (int k = 0; k < 5; k++) {
+                        double t[W] = {0};
+                        for (int b = 0; b < NB; b++) {
+                            const double mi = Minv[a * NB + b];
+                            for (int l = 0; l < W; l++) t[l] += mi * r[b][k][l];
+                        }
+                        for (int l = 0; l < W; l++) u[a][k][l] = t[l];
+                    }
+                src = u;
+            }
+            if (m > 0) coef *= dt / (double)(m + 1);
+            for (int a = 0; a < NB; a++) /* w = B^-1 src, node by node; then the update */
+                for (long l = 0; l < W; l++) {
+                    const double t0 = src[a][0][l], t1 = src[a][1][l], t2 = src[a][2][l], t3 = src[a][3][l],
+                                 t4 = src[a][4][l];
+                    const double wv[5] = {Bl[0][l] * t0, Bl[1][l] * t1,
+                                          Bl[2][l] * t2 + Bl[3][l] * t3 + Bl[4][l] * t4,
+                                          Bl[5][l] * t2 + Bl[6][l] * t3 + Bl[7][l] * t4,
+                                          Bl[8][l] * t2 + Bl[9][l] * t3 + Bl[10][l] * t4};
+                    if (m == 0) { /* the corrector: x += w; the predictor starts from the new x */
+                        const long c = c0 + (l < w ? l : 0);
+                        double *xc = x + 5 * (NB * c + a);
+                        for (int k = 0; k < 5; k++) {
+                            const double v = xc[k] + wv[k];
+                            if (l < w) xc[k] = v;
+                            u[a][k][l] = v;
+                            acc[a][k][l] = dt * v;
+                        }
+                    } else { /* the Taylor term dt^(m+1)/(m+1)! D^m x */
+                        for (int k = 0; k < 5; k++) {
+                            u[a][k][l] = wv[k];
+                            acc[a][k][l] += coef * wv[k];
+                        }
+                    }
+                }
+        }
+        for (long l = 0; l < w; l++)
+            for (int a = 0; a < NB; a++)
+                for (int k = 0; k < 5; k++) I[5 * (NB * (c0 + l) + a) + k] = acc[a][k][l];
+    }
+}
