@@ -57,21 +57,37 @@ def main(argv=None) -> int:
         print(f"postprocess: {err}", file=sys.stderr)
         return 2
     out = Path(args.out) if args.out else run.dir / "figures"
-    pngs = figures.make_figures(run.dir, out=out, count=args.frames, size=tuple(args.size))
-    chart_pngs = charts.make_charts(run.dir, out=out) if run.history else []
-    gif = None if args.no_animation else animate.animate(run.dir, out=out / f"{run.name}_energy.gif")
-    pv_files = []
+    out.mkdir(parents=True, exist_ok=True)
+    # ParaView runs as its own process beside the figures, charts and animation (it reads the
+    # run's files and writes only its own two): on 2 cores the two halves overlap
+    paraview, cmd = None, None
     if not args.no_paraview:
         cmd = paraview_command(run.dir, out, run.pvd.stem)
         if cmd is None:
             print("[postprocess] ParaView (pvpython, and xvfb-run without a display) not found: "
                   "no ParaView screenshot/state")
         else:
-            res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
-            if res.returncode == 0 and "open_run: ok" in res.stdout:
-                pv_files = [out / f"{run.pvd.stem}.pvsm", out / f"{run.pvd.stem}_paraview.png"]
-            else:
-                print(f"[postprocess] {' '.join(cmd)} failed (exit {res.returncode}):\n{res.stderr[-2000:]}")
+            paraview = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        pngs = figures.make_figures(run.dir, out=out, count=args.frames, size=tuple(args.size))
+        chart_pngs = charts.make_charts(run.dir, out=out) if run.history else []
+        gif = None if args.no_animation else animate.animate(run.dir, out=out / f"{run.name}_energy.gif")
+    except BaseException:
+        if paraview is not None:
+            paraview.kill()
+            paraview.communicate()
+        raise
+    pv_files = []
+    if paraview is not None:
+        try:
+            stdout, stderr = paraview.communicate(timeout=600)
+        except subprocess.TimeoutExpired:
+            paraview.kill()
+            stdout, stderr = paraview.communicate()
+        if paraview.returncode == 0 and "open_run: ok" in stdout:
+            pv_files = [out / f"{run.pvd.stem}.pvsm", out / f"{run.pvd.stem}_paraview.png"]
+        else:
+            print(f"[postprocess] {' '.join(cmd)} failed (exit {paraview.returncode}):\n{stderr[-2000:]}")
     sheets = [p for p in pngs if p.name.endswith("_sequence.png")]
     print(f"[postprocess] figures:   {len(pngs) - len(sheets)} PNGs in {out} "
           f"(sequences: {', '.join(p.name for p in sheets) or '-'})")
