@@ -118,6 +118,18 @@ def test_animation(quick_run, run_python, tmp_path):
     assert 0 < gif.stat().st_size < 3e6
     with Image.open(gif) as img:
         assert img.size == (240, 180) and img.n_frames == 5
+    # the frames drawn by 2 processes (the default where there are 2 cores) and by 1: the same GIF
+    counts = {}
+    for n in (1, 2):
+        other = tmp_path / f"run_{n}.gif"
+        stdout = run_python(["-m", "hydrofrac.postprocess.animate", quick_run, "--max-frames", "5", "--size", "240",
+                             "180", "--out", other, "--workers", str(n)], timeout=300)
+        assert "failed" not in stdout
+        counts[n] = other.read_bytes()
+    assert counts[1] == counts[2]
+    with pytest.raises(ValueError, match="--workers must be an integer >= 1"):
+        from hydrofrac.postprocess import animate
+        animate.animate(quick_run, out=tmp_path / "x.gif", workers=0)
 
 
 def test_everything_in_one_go(quick_run, run_python, tmp_path):
