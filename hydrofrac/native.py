@@ -78,11 +78,12 @@ def _cache_dir() -> Path:
         path = Path(d)
         path.mkdir(parents=True, exist_ok=True)  # a set cache that cannot be made is an error
         return path
-    path = Path.home() / ".cache" / "hydrofrac"
     try:
+        path = Path.home() / ".cache" / "hydrofrac"
         path.mkdir(parents=True, exist_ok=True)
         return path
-    except OSError:  # (a home without write permission: a per-user folder in the temp dir)
+    except (OSError, RuntimeError, KeyError):  # (no home, or one without write permission: a per-user
+        # folder in the temp dir)
         path = Path(tempfile.gettempdir()) / f"hydrofrac-{os.getuid()}"
         path.mkdir(parents=True, exist_ok=True)
         return path
