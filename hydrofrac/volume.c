@@ -22,6 +22,42 @@
 /* at P1 (NB = 3) the gradients are constant: one row of S_r serves every node */
 #define ROWS (NB == 3 ? 1 : NB)
 
+/* A block's cell data: the values u (NB nodes, 5 fields, W lanes), and per lane the inverse
+ * Jacobian (row by row) and 1/|det J| in jac[0..4].  A short last block repeats its first cell in
+ * the empty lanes (computed, never stored). */
+static inline void load_block(double u[NB][5][W], double jac[5][W], const double *restrict X,
+                              const double *restrict Jinv, const double *restrict invdet, long c0, long w)
+{
+    for (long l = 0; l < W; l++) {
+        const long c = c0 + (l < w ? l : 0);
+        for (int j = 0; j < NB; j++)
+            for (int k = 0; k < 5; k++) u[j][k][l] = X[5 * (NB * c + j) + k];
+        for (int q = 0; q < 4; q++) jac[q][l] = Jinv[4 * c + q];
+        jac[4][l] = invdet[c];
+    }
+}
+
+/* Reference derivatives g_r = A_r u: A_r = S_r (the volume terms) or D_r (ADER's Taylor terms). */
+static inline void derivatives(double g0[ROWS][5][W], double g1[ROWS][5][W], const double *restrict A0,
+                               const double *restrict A1, double u[NB][5][W])
+{
+    for (int i = 0; i < ROWS; i++)
+        for (int k = 0; k < 5; k++) {
+            double s0[W] = {0}, s1[W] = {0};
+            for (int j = 0; j < NB; j++) {
+                const double a = A0[i * NB + j], b = A1[i * NB + j];
+                for (int l = 0; l < W; l++) {
+                    s0[l] += a * u[j][k][l];
+                    s1[l] += b * u[j][k][l];
+                }
+            }
+            for (int l = 0; l < W; l++) {
+                g0[i][k][l] = s0[l];
+                g1[i][k][l] = s1[l];
+            }
+        }
+}
+
 void volume_and_inverse(double *restrict out, double *restrict R, const double *restrict X, long ncells,
                         const double *restrict S0, const double *restrict S1, const double *restrict Jinv,
                         const double *restrict invdet, const double *restrict Minv, const int *restrict mat,
@@ -29,35 +65,10 @@ void volume_and_inverse(double *restrict out, double *restrict R, const double *
 {
     for (long c0 = 0; c0 < ncells; c0 += W) {
         const long w = ncells - c0 < W ? ncells - c0 : W;  /* cells in this block */
-        double u[NB][5][W], g0[ROWS][5][W], g1[ROWS][5][W], r[NB][5][W];
-        double j00[W], j01[W], j10[W], j11[W], e[W];
-        /* a short last block repeats its first cell in the empty lanes (computed, not stored) */
-        for (long l = 0; l < W; l++) {
-            const long c = c0 + (l < w ? l : 0);
-            for (int j = 0; j < NB; j++)
-                for (int k = 0; k < 5; k++) u[j][k][l] = X[5 * (NB * c + j) + k];
-            j00[l] = Jinv[4 * c];
-            j01[l] = Jinv[4 * c + 1];
-            j10[l] = Jinv[4 * c + 2];
-            j11[l] = Jinv[4 * c + 3];
-            e[l] = invdet[c];
-        }
-        /* reference derivatives: g_r = S_r u */
-        for (int i = 0; i < ROWS; i++)
-            for (int k = 0; k < 5; k++) {
-                double s0[W] = {0}, s1[W] = {0};
-                for (int j = 0; j < NB; j++) {
-                    const double a = S0[i * NB + j], b = S1[i * NB + j];
-                    for (int l = 0; l < W; l++) {
-                        s0[l] += a * u[j][k][l];
-                        s1[l] += b * u[j][k][l];
-                    }
-                }
-                for (int l = 0; l < W; l++) {
-                    g0[i][k][l] = s0[l];
-                    g1[i][k][l] = s1[l];
-                }
-            }
+        double u[NB][5][W], g0[ROWS][5][W], g1[ROWS][5][W], r[NB][5][W], jac[5][W];
+        load_block(u, jac, X, Jinv, invdet, c0, w);
+        const double *j00 = jac[0], *j01 = jac[1], *j10 = jac[2], *j11 = jac[3], *e = jac[4];
+        derivatives(g0, g1, S0, S1, u);
         /* r = R / |det J| + volume terms (d/dx = Jinv[0,0] d/dX0 + Jinv[1,0] d/dX1, ...) */
         for (int i = 0; i < NB; i++) {
             const int iv = ROWS == NB ? i : 0;
@@ -210,37 +221,16 @@ void ader_corrector(double *restrict x, double *restrict I, double *restrict R, 
 {
     for (long c0 = 0; c0 < ncells; c0 += W) {
         const long w = ncells - c0 < W ? ncells - c0 : W;
-        double u[NB][5][W], g0[ROWS][5][W], g1[ROWS][5][W], r[NB][5][W], acc[NB][5][W];
-        double j00[W], j01[W], j10[W], j11[W], e[W], Bl[11][W];
+        double u[NB][5][W], g0[ROWS][5][W], g1[ROWS][5][W], r[NB][5][W], acc[NB][5][W], jac[5][W], Bl[11][W];
+        load_block(u, jac, I, Jinv, invdet, c0, w);
+        const double *j00 = jac[0], *j01 = jac[1], *j10 = jac[2], *j11 = jac[3], *e = jac[4];
         for (long l = 0; l < W; l++) {
             const long c = c0 + (l < w ? l : 0);
-            for (int j = 0; j < NB; j++)
-                for (int k = 0; k < 5; k++) u[j][k][l] = I[5 * (NB * c + j) + k];
-            j00[l] = Jinv[4 * c];
-            j01[l] = Jinv[4 * c + 1];
-            j10[l] = Jinv[4 * c + 2];
-            j11[l] = Jinv[4 * c + 3];
-            e[l] = invdet[c];
             for (int q = 0; q < 11; q++) Bl[q][l] = Btab[11 * mat[c] + q];
         }
         double coef = dt;
         for (long m = 0; m <= order; m++) {
-            const double *A0 = m == 0 ? S0 : D0, *A1 = m == 0 ? S1 : D1;
-            for (int i = 0; i < ROWS; i++)
-                for (int k = 0; k < 5; k++) {
-                    double s0[W] = {0}, s1[W] = {0};
-                    for (int j = 0; j < NB; j++) {
-                        const double a = A0[i * NB + j], b = A1[i * NB + j];
-                        for (int l = 0; l < W; l++) {
-                            s0[l] += a * u[j][k][l];
-                            s1[l] += b * u[j][k][l];
-                        }
-                    }
-                    for (int l = 0; l < W; l++) {
-                        g0[i][k][l] = s0[l];
-                        g1[i][k][l] = s1[l];
-                    }
-                }
+            derivatives(g0, g1, m == 0 ? S0 : D0, m == 0 ? S1 : D1, u);
             /* r = the strong-form volume terms of u (row 0 copied where the rows are equal) */
             for (int i = 0; i < NB; i++) {
                 const int iv = ROWS == NB ? i : 0;
