@@ -96,7 +96,7 @@ def _library(defines: tuple) -> ctypes.CDLL:
     key = hashlib.sha256("\n".join([source, " ".join(flags), _identity()]).encode()).hexdigest()[:20]
     lib = _cache_dir() / f"{_SOURCE.stem}_{key}.so"
     if not lib.exists():
-        tmp = lib.with_name(f"{lib.name}.{os.getpid()}.tmp")
+        tmp = lib.with_name(f"{lib.name}.{platform.node()}.{os.getpid()}.tmp")  # (a cache shared by hosts)
         cmd = [_compiler(), *flags, str(_SOURCE), "-o", str(tmp)]
         res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
         if res.returncode != 0:
