@@ -277,6 +277,7 @@ class Interface:
         self.Z = [np.stack([rho[cells[:, s_]] * cd[cells[:, s_]], rho[cells[:, s_]] * cs[cells[:, s_]]], axis=1)
                   for s_ in range(2)]
         self.Zt = rm.reduced_impedance(self.Z[0], self.Z[1])  # Z~ per component
+        self._Zt_n = self._wq = None  # (the power terms' contiguous copies, when first asked for)
         self.tau = np.array([damage.tau if crack_by_tag[t].tau is None else crack_by_tag[t].tau
                              for t in self.crack_tag], dtype=float)  # tau~ per facet
         self.delta_scale = self.tau * damage.s_bar / self.Zt[:, 0]  # delta~ (eq. 13)
@@ -556,20 +557,14 @@ class Interface:
         T = self.last
         if not T:
             return np.zeros(4)
-        wq = self.weights.reshape(-1)
-        jump = T["vm_star"] - T["vp_star"]
-        a_S = rm.mode_fractions(T["D"], T["eta"], T["gamma"])[:, 3]
-        sep_rate = a_S * rm.separation_jump(T["s_B"][:, 0], T["S"][:, 0], np.repeat(self.Zt[:, 0], self.nq))
-        # tractions relative to the initial stress (the energy is measured relative to it)
-        n = np.repeat(self.n, self.nq, axis=0)
-        s0 = self.solver.sigma0
-        s0n = rm.to_local(n @ s0.T, n)  # (sigma0 n) in local components
-        p_normal = (T["s_star"][:, 0] - s0n[:, 0]) * jump[:, 0]
-        p_sep = (T["S"][:, 0] - s0n[:, 0]) * sep_rate
-        fric = T["s_star"][:, 1] * jump[:, 1]
-        p_shear0 = s0n[:, 1] * jump[:, 1]
-        flux = (T["Zp"] * (T["vp_star"] - T["vp"]) ** 2 + T["Zm"] * (T["vm_star"] - T["vm"]) ** 2).sum(axis=1)
-        return np.array([(a * wq).sum() for a in (fric, p_normal - p_sep, flux, p_shear0 - p_sep)])
+        if self._Zt_n is None:
+            self._Zt_n = np.ascontiguousarray(self.Zt[:, 0])
+            self._wq = np.ascontiguousarray(self.weights.reshape(-1))
+        # tractions relative to the initial stress (the energy is measured relative to it); one
+        # compiled pass over the points (kernels.interface_power)
+        return kernels.interface_power(T["vp"], T["vm"], T["vp_star"], T["vm_star"], T["s_star"], T["s_B"], T["S"],
+                                       T["D"], T["eta"], T["gamma"], T["Zp"], T["Zm"], self._Zt_n,
+                                       np.ascontiguousarray(self.n), self.nq, self.solver.sigma0, self._wq)
 
     # ------------------------------------------------------------------ output
     def fields(self):

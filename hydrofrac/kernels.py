@@ -25,7 +25,7 @@ import numpy as np
 
 from ._jit import njit, prefetch
 from .riemann import (bonded_pt, closing_flow_pt, combine_point, damage_rate_pt, effective_stress_pt, eta_exact_pt,
-                      eta_regularized_pt, macaulay_pt, penalty_traction_pt, separation_jump_pt,
+                      eta_regularized_pt, macaulay_pt, mode_weights_pt, penalty_traction_pt, separation_jump_pt,
                       target_damage_pt)
 
 
@@ -254,6 +254,37 @@ def _flux(Rc, r, P, I, nowned, f, q, nq, nb, nx, ny, w, vpn, vpt, vmn, vmt,
         F0, F1 = w * sgn * dsx, w * sgn * dsy
         F2, F3, F4 = w * dvx * mx, w * dvy * my, w * (dvx * my + dvy * mx)
         _scatter(Rc, r, P, I, nowned, f, q, side, nq, nb, F0, F1, F2, F3, F4)
+
+
+@njit
+def interface_power(vp, vm, vp_star, vm_star, s_star, s_B, S, D, eta, gamma, Zp, Zm, Zt_n, normal, nq, s0, w):
+    """This rank's four power terms of the crack facets at their Gauss points, in the order of
+    :data:`hydrofrac.energy.DISSIPATION_TERMS` (:meth:`hydrofrac.interface.Interface.
+    local_dissipation_rates` says what each is): friction s*_t [[v*]]_t; the normal power
+    beyond the separation traction's work, (s*_n - (sigma0 n)_n) [[v*]]_n - (S_n - (sigma0 n)_n)
+    a_S [[v_S]]_n; the characteristic dissipation of the traces, sum Z (v* - v)^2 over both
+    sides and components; the initial shear traction's power beyond the separation work,
+    (sigma0 n)_t [[v*]]_t - (S_n - (sigma0 n)_n) a_S [[v_S]]_n.  Point arrays in local
+    components, (N, 2) or (N,); ``Zt_n`` (facets,) the reduced normal impedance; ``w`` (N,)
+    the quadrature weights."""
+    out = np.zeros(4)
+    for i in range(D.shape[0]):
+        f = i // nq
+        nx, ny = normal[f, 0], normal[f, 1]
+        tx, ty = s0[0, 0] * nx + s0[0, 1] * ny, s0[1, 0] * nx + s0[1, 1] * ny  # sigma0 n
+        s0n, s0t = tx * nx + ty * ny, -tx * ny + ty * nx
+        jn, jt = vm_star[i, 0] - vp_star[i, 0], vm_star[i, 1] - vp_star[i, 1]
+        a_S = mode_weights_pt(D[i], eta[i], gamma[i])[2]
+        p_sep = (S[i, 0] - s0n) * a_S * separation_jump_pt(s_B[i, 0], S[i, 0], Zt_n[f])
+        flux = 0.0
+        for k in range(2):
+            dp, dm = vp_star[i, k] - vp[i, k], vm_star[i, k] - vm[i, k]
+            flux += Zp[i, k] * dp * dp + Zm[i, k] * dm * dm
+        out[0] += w[i] * s_star[i, 1] * jt
+        out[1] += w[i] * ((s_star[i, 0] - s0n) * jn - p_sep)
+        out[2] += w[i] * flux
+        out[3] += w[i] * (s0t * jt - p_sep)
+    return out
 
 
 @njit

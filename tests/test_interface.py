@@ -340,3 +340,48 @@ def test_shear_fracture_scenario(run_python, tmp_path):
 
 if __name__ == "__main__":
     sys.exit(pytest.main([__file__, "-v"]))
+
+
+def power_terms_restated(iface):
+    """The four power terms of Interface.local_dissipation_rates, written out here in NumPy from
+    their definitions (the interface's docstring of dissipation_rates), for the compiled pass."""
+    T, nq = iface.last, iface.nq
+    w = iface.weights.reshape(-1)
+    n = np.repeat(iface.n, nq, axis=0)
+    t = np.stack([-n[:, 1], n[:, 0]], axis=1)
+    s0n_vec = n @ iface.solver.sigma0.T  # sigma0 n
+    s0n, s0t = (s0n_vec * n).sum(axis=1), (s0n_vec * t).sum(axis=1)
+    jump = T["vm_star"] - T["vp_star"]
+    a_S = T["D"] * (1 - T["eta"])  # the separation mode's fraction
+    v_S = 2.0 / np.repeat(iface.Zt[:, 0], nq) * (T["s_B"][:, 0] - T["S"][:, 0])  # eqs. 11-12
+    p_sep = (T["S"][:, 0] - s0n) * a_S * v_S
+    flux = (T["Zp"] * (T["vp_star"] - T["vp"]) ** 2 + T["Zm"] * (T["vm_star"] - T["vm"]) ** 2).sum(axis=1)
+    terms = (T["s_star"][:, 1] * jump[:, 1], (T["s_star"][:, 0] - s0n) * jump[:, 0] - p_sep, flux,
+             s0t * jump[:, 1] - p_sep)
+    return np.array([(a * w).sum() for a in terms])
+
+
+@pytest.mark.parametrize("case", ["slipping", "opening"])
+def test_power_terms_equal_their_definitions(case):
+    """The compiled power terms (kernels.interface_power) equal their NumPy restatement, on a
+    slipping crack (friction and the initial shear traction's power) and on one that opens under
+    a fluid pressure (the separation mode's work), each term nonzero where the case drives it."""
+    if case == "slipping":
+        solver, iface, *_ = sheared_crack(2.0, nx=20)
+        steps = 200
+    else:
+        solver, iface = confined_crack(P0 * 1.002)
+        steps = 40
+    checked = 0
+    for k in range(steps):
+        solver.step()
+        if k % 10 == 9 and iface.facets.size:
+            got, want = iface.local_dissipation_rates(), power_terms_restated(iface)
+            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+            checked += 1
+    if iface.facets.size:
+        assert checked > 0
+        if case == "slipping":
+            assert want[0] > 0 and (iface.last["gamma"] == 0).any()  # friction works on a slip
+        else:
+            assert (iface.last["eta"] < 1).any() and want[1] != 0  # the separation mode works
