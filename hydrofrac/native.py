@@ -222,7 +222,10 @@ def bonded_coefficients(Zpn, Zmn, Zpt, Zmt, bonded_jump_pt):
     quad = np.stack([Zpn, Zmn, Zpt, Zmt], axis=1)
     if quad.shape[0] == 0:
         return np.zeros((1, 16)), np.zeros(0, dtype=np.int32)
-    table, pair = np.unique(quad, axis=0, return_inverse=True)
+    if (quad == quad[0]).all():  # one material: one pair, without np.unique's sort (6 ms at 8k facets)
+        table, pair = quad[:1], np.zeros(quad.shape[0], dtype=np.int32)
+    else:
+        table, pair = np.unique(quad, axis=0, return_inverse=True)
     coef = np.empty((table.shape[0], 16))
     for q, (zpn, zmn, zpt, zmt) in enumerate(table):
         coef[q] = (bonded_jump_pt(1.0, 0.0, zpn, zmn) + bonded_jump_pt(0.0, 1.0, zpn, zmn)
