@@ -1,5 +1,6 @@
-"""Matrix-free bulk DG operator: cell-local numba kernels for the volume terms, the
-upwind (bonded Riemann) flux on interior facets and the closed-form inverse mass.
+"""Matrix-free bulk DG operator: cell-local compiled kernels for the volume terms, the
+upwind (bonded Riemann) flux on interior facets and the closed-form inverse mass (numba here;
+the volume, facet and ADER loops also in C, :mod:`hydrofrac.native`, the default).
 
 ``MatrixFreeOperator.apply(x, out)`` computes ``out = M^{-1} (K_vol + K_int) x`` on the
 owned cells, for the same weak form as :mod:`hydrofrac.forms.elastodynamics` (the tests
@@ -658,8 +659,8 @@ class MatrixFreeOperator:
         self._R_clear = True
         self.Mref = np.ascontiguousarray(ref.mass())
         self.Bmat = solver.material_blocks
-        # the volume terms in C, in blocks of cells (hydrofrac/native.py) for a cell-contiguous
-        # space; otherwise, or with HYDROFRAC_KERNELS=numba, the numba kernel
+        # the volume, interior facet and ADER kernels in C, in blocks of cells (hydrofrac/native.py)
+        # for a cell-contiguous space; otherwise, or with HYDROFRAC_KERNELS=numba, the numba ones
         self.kernels = native.backend() if self.contiguous else "numba"
         self._cvolume = self._cfacets = self._cader = None  # (ADER's when first used)
         if self.kernels == "c":
