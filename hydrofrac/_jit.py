@@ -19,10 +19,16 @@ HAVE_NUMBA = numba is not None
 FASTMATH = {"contract", "reassoc", "nsz", "arcp"}
 
 
-def njit(fn):
+def njit(fn=None, *, exact=False):
     """``numba.njit`` (cached, numpy error model: no Python-style zero-division checks),
-    or ``fn`` itself without numba."""
-    return numba.njit(cache=True, error_model="numpy", fastmath=FASTMATH)(fn) if HAVE_NUMBA else fn
+    or ``fn`` itself without numba.  ``exact=True`` (as ``@njit(exact=True)``) compiles without
+    the :data:`FASTMATH` flags, so that the arithmetic is NumPy's operation for operation, bit
+    for bit (for a pass that replaces NumPy code whose results decide thresholds)."""
+    if fn is None:
+        return lambda f: njit(f, exact=exact)
+    if not HAVE_NUMBA:
+        return fn
+    return numba.njit(cache=True, error_model="numpy", fastmath=set() if exact else FASTMATH)(fn)
 
 
 def vectorize(point_fn, signatures):

@@ -71,7 +71,16 @@ def loaded_facets(edges_vertices, active, source) -> np.ndarray:
     return active & np.isin(roots, src_roots)
 
 
-def pressure_factor_vertices(edges_vertices, loaded, opening_ends, scale, source=None):
+def vertex_index(edges_vertices):
+    """((m, 2) compact vertex number of each facet end, vertex count) of a facet list with any
+    integer vertex ids: the facet-vertex graph the pressure factor runs on (a network's is
+    computed once per mesh, :class:`Hydraulics`)."""
+    ev = np.asarray(edges_vertices).reshape(-1)
+    uniq, inv = np.unique(ev, return_inverse=True)
+    return inv.reshape(-1, 2).astype(np.int64), int(uniq.size)
+
+
+def pressure_factor_vertices(edges_vertices, loaded, opening_ends, scale, source=None, index=None):
     """f_p per facet end, (m, 2): from the largest opening of the loaded facets at each vertex.
 
     opening_ends : (m, 2) opening at each facet end; scale : delta_bar' * delta~ (per facet, (m,))
@@ -79,23 +88,39 @@ def pressure_factor_vertices(edges_vertices, loaded, opening_ends, scale, source
     (:func:`connected_factor`): a facet end carries no more than the narrowest opening on the
     widest path from a source to it (docs/model.md, "The pressure factor through connected
     apertures").  None: eq. (15) at each vertex alone.
+    index : :func:`vertex_index` of ``edges_vertices``, if known.  One compiled pass.
     """
-    m = edges_vertices.shape[0]
+    ev, nv = vertex_index(edges_vertices) if index is None else index
+    m = ev.shape[0]
+    connected = source is not None
+    src = np.asarray(source, dtype=np.bool_) if connected else np.zeros(m, dtype=np.bool_)
+    return _pressure_factor(ev, nv, np.asarray(loaded, dtype=np.bool_),
+                            np.ascontiguousarray(opening_ends, dtype=float).reshape(m, 2),
+                            np.ascontiguousarray(np.broadcast_to(np.asarray(scale, dtype=float), (m,))),
+                            src, connected)
+
+
+@njit(exact=True)
+def _pressure_factor(ev, nv, loaded, ends, scale, source, connected):
+    """Eq. (15) at each vertex (the largest opening of the loaded facets there over
+    delta_bar' delta~, clipped to [0, 1]; unloaded facets 0), then, if ``connected``, at most
+    the bottleneck of the widest path from a source (:func:`_connected`)."""
+    m = ev.shape[0]
+    vmax = np.full(nv, -np.inf)
+    for i in range(m):
+        if loaded[i]:
+            for k in range(2):
+                vmax[ev[i, k]] = max(vmax[ev[i, k]], ends[i, k])
     fp = np.zeros((m, 2))
-    if not loaded.any():
-        return fp
-    verts = edges_vertices[loaded].reshape(-1)
-    ops = opening_ends[loaded].reshape(-1)
-    uniq, inv = np.unique(verts, return_inverse=True)
-    vmax = np.full(uniq.size, -np.inf)
-    np.maximum.at(vmax, inv, ops)
-    pos = np.searchsorted(uniq, edges_vertices)
-    pos = np.clip(pos, 0, uniq.size - 1)
-    at = np.where(uniq[pos] == edges_vertices, vmax[pos], -np.inf)
-    fp = np.clip(at / np.asarray(scale)[:, None], 0.0, 1.0)
-    fp[~loaded] = 0.0
-    if source is not None:
-        fp = np.minimum(fp, connected_factor(edges_vertices, loaded, fp, source))
+    for i in range(m):
+        if loaded[i]:
+            for k in range(2):
+                fp[i, k] = min(max(vmax[ev[i, k]] / scale[i], 0.0), 1.0)
+    if connected:
+        best = _connected(ev, nv, loaded, fp, source)
+        for i in range(m):
+            for k in range(2):
+                fp[i, k] = min(fp[i, k], best[i, k])
     return fp
 
 
@@ -107,18 +132,35 @@ def connected_factor(edges_vertices, loaded, fp_ends, source):
     largest, over the paths from a source facet's vertex to it, of the narrowest width on the
     path: Dijkstra's search with max-min in place of the sum (compiled, :func:`_widest_paths`).
     Unloaded facets: 0."""
-    m = edges_vertices.shape[0]
+    ev, nv = vertex_index(edges_vertices)
+    return _connected(ev, nv, np.asarray(loaded, dtype=np.bool_),
+                      np.ascontiguousarray(fp_ends, dtype=float).reshape(-1, 2), np.asarray(source, dtype=np.bool_))
+
+
+@njit(exact=True)
+def _connected(ev, nv, loaded, fp_ends, source):
+    """:func:`connected_factor` on compact vertex numbers ``ev`` (:func:`vertex_index`)."""
+    m = ev.shape[0]
+    n = 0
+    for i in range(m):
+        n += loaded[i]
+    a = np.empty(n, np.int64)
+    b = np.empty(n, np.int64)
+    w = np.empty(n)
+    mark = np.zeros(nv, np.bool_)
+    j = 0
+    for i in range(m):
+        if loaded[i]:
+            a[j], b[j] = ev[i, 0], ev[i, 1]
+            w[j] = 1.0 if source[i] else min(fp_ends[i, 0], fp_ends[i, 1])
+            if source[i]:
+                mark[a[j]] = mark[b[j]] = True
+            j += 1
+    best = _widest_paths(nv, a, b, w, np.flatnonzero(mark).astype(np.int64))
     out = np.zeros((m, 2))
-    idx = np.flatnonzero(loaded)
-    if not idx.size:
-        return out
-    uniq, inv = np.unique(np.asarray(edges_vertices)[idx].reshape(-1), return_inverse=True)
-    e = inv.reshape(-1, 2).astype(np.int64)
-    src = np.asarray(source, dtype=bool)[idx]
-    width = np.where(src, 1.0, np.asarray(fp_ends, dtype=float)[idx].min(axis=1))
-    best = _widest_paths(uniq.size, e[:, 0].copy(), e[:, 1].copy(), width,
-                         np.unique(e[src].reshape(-1)).astype(np.int64))
-    out[idx] = best[e]
+    for i in range(m):
+        if loaded[i]:
+            out[i, 0], out[i, 1] = best[ev[i, 0]], best[ev[i, 1]]
     return out
 
 
@@ -272,7 +314,30 @@ class Hydraulics:
         self.wet_q = np.ones((iface.facets.size, iface.nq))  # fluid behind the front (volume given)
         self._components = None  # (network, sources, loaded) of the last update, all ranks
         self._fill = None  # (loaded, fill_order) of the last update, all ranks
+        # the network's fixed data, gathered once per mesh (crack facets are a small part of
+        # it): vertex ids, sources, delta_bar' delta~, lengths, and its vertex numbering
+        parts = comm.allgather((self.vertices, self.source, self.scale, iface.length))
+        self._V = np.concatenate([p[0] for p in parts]).reshape(-1, 2)
+        self._Src = np.concatenate([p[1] for p in parts]).astype(bool)
+        self._Sc = np.concatenate([p[2] for p in parts]).astype(float)
+        self._L = np.concatenate([p[3] for p in parts]).astype(float)
+        self._index = vertex_index(self._V)
+        counts = np.array([p[0].shape[0] for p in parts])
+        offset = int(counts[: comm.rank].sum())
+        self._mine = slice(offset, offset + iface.facets.size)
+        self._counts = counts
         self.update()
+
+    def _gather_state(self, active, ends, cap):
+        """(active, opening ends, capacity or None) of every rank's facets, in rank order: one
+        ``Allgatherv`` of a (facets, 3 or 4) array."""
+        cols = [active.astype(float)[:, None], ends] + ([cap[:, None]] if cap is not None else [])
+        k = 3 if cap is None else 4
+        send = np.ascontiguousarray(np.hstack(cols) if self.iface.facets.size else np.zeros((0, k)))
+        recv = np.empty((int(self._counts.sum()), k))
+        sizes = self._counts * k
+        self.comm.Allgatherv(send, [recv, sizes, np.r_[0, np.cumsum(sizes)[:-1]], MPI.DOUBLE])
+        return recv[:, 0] > 0.5, recv[:, 1:3], (recv[:, 3] if cap is not None else None)
 
     # ----------------------------------------------------------------- per step
     def update(self):
@@ -286,27 +351,22 @@ class Hydraulics:
         # a facet holds the fluid of its mean aperture, at least δ̄'δ̃ (where it is fully loaded)
         cap = (np.maximum((op * iface.weights).sum(axis=1), self.scale * iface.length) if volume is not None
                else None)
-        # gather the whole network (crack facets are a small part of the mesh)
-        parts = self.comm.allgather((self.vertices, active, self.source, ends, self.scale, iface.length, cap))
-        V = np.concatenate([p[0] for p in parts]).reshape(-1, 2)
-        A = np.concatenate([p[1] for p in parts]).astype(bool)
-        Src = np.concatenate([p[2] for p in parts]).astype(bool)
-        E = np.concatenate([p[3] for p in parts]).reshape(-1, 2)
-        Sc = np.concatenate([p[4] for p in parts])
+        # gather the whole network's state (the fixed part was gathered with the mesh)
+        A, E, Cap = self._gather_state(active, ends, cap)
+        V, Src, mine = self._V, self._Src, self._mine
         # the components change only when a facet joins or leaves the network: reuse them
         # otherwise (the gathered arrays are the same on every rank, and so is the choice)
         cached = self._components
-        if cached is not None and np.array_equal(cached[0], A) and np.array_equal(cached[1], Src):
+        if cached is not None and np.array_equal(cached[0], A):
             loaded = cached[2]
         else:
             loaded = loaded_facets(V, A, Src)
             self._components = (A, Src, loaded)
-        offset = sum(p[0].shape[0] for p in parts[: self.comm.rank])
-        mine = slice(offset, offset + iface.facets.size)
         self.network = A[mine]
         self.loaded = loaded[mine]
         if self.params.regularized:
-            fp_ends = pressure_factor_vertices(V, loaded, E, Sc, source=Src if self.params.connected else None)[mine]
+            fp_ends = pressure_factor_vertices(V, loaded, E, self._Sc, source=Src if self.params.connected else None,
+                                               index=self._index)[mine]
             fp_q = fp_ends[:, :1] * (1 - self.s_q) + fp_ends[:, 1:] * self.s_q
             fp_q[self.source] = 1.0
         else:
@@ -316,9 +376,8 @@ class Hydraulics:
         if volume is not None:
             # the fill order changes only with the loaded set (the same on every rank)
             if self._fill is None or not np.array_equal(self._fill[0], loaded):
-                self._fill = (loaded, fill_order(V, np.concatenate([p[5] for p in parts]), loaded, Src))
-            wet, near = fluid_fill(V, None, loaded, Src, np.concatenate([p[6] for p in parts]),
-                                   volume(iface.solver.t), order=self._fill[1])
+                self._fill = (loaded, fill_order(V, self._L, loaded, Src))
+            wet, near = fluid_fill(V, None, loaded, Src, Cap, volume(iface.solver.t), order=self._fill[1])
             self.wet_q = wet_q = wet_points(wet[mine], near[mine], self.s_q)
         # the fraction of p_h a point carries: f_p behind the fluid's front
         self.fp_q = fp_q if wet_q is None else fp_q * wet_q

@@ -372,3 +372,34 @@ def test_growth_speed_limit(intersections, tmp_path):
     s, out = _run("intersection_regularized.py", tmp_path, "--growth-max-speed", "300")
     speeds = [e["speed"] for e in json.loads((out / "growth.json").read_text())["events"] if e["speed"]]
     assert free > 300 and speeds and max(speeds) <= 300 * (1 + 1e-9), (free, max(speeds))
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("connected", [False, True], ids=["local", "connected"])
+def test_pressure_factor_same_on_1_and_2_ranks(connected):
+    """Case 6 for the hydraulic update: the network's fixed data are gathered once per mesh and
+    its state once per step (one Allgatherv); f_p at every Gauss point of the re-fracture's
+    pre-meshed network (every facet debonded, openings varying along the cracks from closed to
+    wide open) is the same on COMM_WORLD as on one rank, matched by coordinates."""
+    from mpi4py import MPI
+    sys.path.insert(0, str(ROOT / "scenarios"))
+    import refracture
+
+    def factors(comm):
+        problem = refracture.setup(comm, quick=True, degree=1, connected=connected, pump_rate=float("inf"))
+        iface, hyd = problem.interface, problem.hydraulics
+        xq = iface.va[:, None, :] + hyd.s_q[None, :, None] * (iface.vb - iface.va)[:, None, :]
+        iface.state[0][:] = 1.0
+        iface.state[1][:] = iface.delta_scale[:, None] * 0.2 * (np.sin(9 * xq[..., 0]) + np.cos(7 * xq[..., 1]))
+        hyd.update()
+        pts = np.concatenate(comm.allgather(xq.reshape(-1, 2)))
+        fp = np.concatenate(comm.allgather(hyd.fp_q.reshape(-1)))
+        order = np.lexsort(np.round(pts / 1e-9).T[::-1])
+        return pts[order], fp[order]
+
+    comm = MPI.COMM_WORLD
+    pts_n, fp_n = factors(comm)
+    pts_1, fp_1 = factors(MPI.COMM_SELF)
+    assert 0.05 < (fp_1 == 1.0).mean() < 0.95 and ((fp_1 > 0) & (fp_1 < 1)).any()  # all three regimes
+    np.testing.assert_allclose(pts_n, pts_1, atol=1e-12)
+    np.testing.assert_array_equal(fp_n, fp_1)
