@@ -389,11 +389,12 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
 
     tags = dict(perforations=perf_tags, naturals=nat_tags, paths=list(path_tags), lines=lines)
     fallback = None
+    from .patch import capture, distribute
     if previous is not None:
         from . import patch
         if patch_radius is None or not patch_radius > 0:
             raise ValueError(f"a local remesh needs patch_radius > 0; got {patch_radius}")
-        merged, n_patch, why = None, 0, None
+        merged, n_patch, why, shrinks = None, 0, None, False
         if comm.rank == 0:
             law = patch.SizeLaw(domain.h_crack, domain.h_far, domain.grading, domain.wellbore_radius,
                                 domain.h_tip, domain.tip_radius)
@@ -401,12 +402,28 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
                 gmsh.option.setNumber("General.Terminal", 0)
                 merged, n_patch, why = patch.patch_arrays(gmsh, previous.arrays, lines, patch_radius, law, tips,
                                                           crack_tags=set(lines))
-        n_patch, why = comm.bcast((n_patch, why), root=0)
+            if why is None:
+                shrinks = (patch.smallest_inradius(merged.nodes, merged.tris) < (1 - patch.CELL_FLOOR_TOLERANCE)
+                           * patch.smallest_inradius(previous.arrays.nodes, previous.arrays.tris))
+        n_patch, why, shrinks = comm.bcast((n_patch, why, shrinks), root=0)
+        full = None
+        if why is None and shrinks:
+            # is the smaller cell the new geometry's (a kink, a short segment) or the patch's?
+            full = mesh_arrays(comm, build, lambda gmsh: capture(gmsh, lines), name="fractures", out=out,
+                               verbose=verbose)
+            better = None
+            if comm.rank == 0:
+                better = (patch.smallest_inradius(full.nodes, full.tris) > (1 + patch.CELL_FLOOR_TOLERANCE)
+                          * patch.smallest_inradius(merged.nodes, merged.tris))
+            if comm.bcast(better, root=0):
+                why = "the patch made a smaller cell than a full remesh does (a shorter time step)"
         if why is None:
-            mesh, ct, ft = patch.distribute(comm, merged, ROCK)
+            mesh, ct, ft = distribute(comm, merged, ROCK)
             return FractureMesh(mesh, ct, ft, **tags, arrays=merged, remesh="patch", patch_cells=n_patch)
         fallback = why
-    from .patch import capture, distribute
+        if why is not None and shrinks:  # (the full mesh is made already; its arrays live on rank 0)
+            mesh, ct, ft = distribute(comm, full, ROCK)
+            return FractureMesh(mesh, ct, ft, **tags, arrays=full, fallback=fallback)
     arrays = mesh_arrays(comm, build, lambda gmsh: capture(gmsh, lines), name="fractures", out=out, verbose=verbose)
     mesh, ct, ft = distribute(comm, arrays, ROCK)
     return FractureMesh(mesh, ct, ft, **tags, arrays=arrays, fallback=fallback)

@@ -277,6 +277,25 @@ def _inside(points, nodes, tris):
     return out
 
 
+#: a patch keeps every cell outside it, so a smallest cell it makes (its inradius sets the
+#: explicit time step) stays for the rest of the run: a patch whose smallest cell is more than
+#: this fraction below the old mesh's is checked against a full remesh of the same geometry,
+#: and the full mesh is taken if its smallest cell is this fraction larger than the patch's
+#: (docs/benchmarks.md, "A patch may not shorten the time step")
+CELL_FLOOR_TOLERANCE = 0.02
+
+
+def smallest_inradius(nodes, tris):
+    """The smallest inradius [m] of the triangles ``tris`` (t, 3) of ``nodes`` (n, 2): the
+    h of the solver's CFL bound (:attr:`hydrofrac.element.Geometry.inradius`)."""
+    T = nodes[tris]
+    edges = (np.linalg.norm(T[:, 1] - T[:, 2], axis=1) + np.linalg.norm(T[:, 2] - T[:, 0], axis=1)
+             + np.linalg.norm(T[:, 0] - T[:, 1], axis=1))
+    area = 0.5 * np.abs((T[:, 1, 0] - T[:, 0, 0]) * (T[:, 2, 1] - T[:, 0, 1])
+                        - (T[:, 2, 0] - T[:, 0, 0]) * (T[:, 1, 1] - T[:, 0, 1]))
+    return float((2.0 * area / edges).min()) if len(T) else math.inf
+
+
 def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius: float, size: SizeLaw,
                  tips=(), crack_tags=None):
     """(merged arrays, number of patch triangles, None) or (None, 0, why not).  ``polylines``:

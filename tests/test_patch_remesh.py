@@ -113,6 +113,47 @@ def test_an_extension_changes_only_the_patch():
     assert same == kept
 
 
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial: rank 0's arrays")
+def test_a_patch_may_not_shorten_the_time_step():
+    """A patch keeps every cell outside it, so a small cell it makes (the smallest inradius sets
+    dt) stays for the rest of the run.  A patch whose smallest cell is more than
+    CELL_FLOOR_TOLERANCE (2 %) below the old mesh's is checked against a full remesh of the
+    same geometry: if the full mesh's smallest cell is 2 % larger, the full mesh is taken and
+    the fallback says why; if not, the smaller cell is the new geometry's (a kink) and the
+    patch stays."""
+    from hydrofrac.meshes.patch import CELL_FLOOR_TOLERANCE as TOL, smallest_inradius as hmin
+    comm = MPI.COMM_WORLD
+    before = [[0.5, 0.0], [0.6, 0.0]]
+    full = fracture_mesh(comm, DOM, network=network(before))
+    h0 = hmin(full.arrays.nodes, full.arrays.tris)
+    # a kink at the tip needs smaller cells, a full remesh's too: the patch stays
+    kink = before + [[0.7, 0.02]]
+    ok = fracture_mesh(comm, DOM, network=network(kink), previous=full, patch_radius=0.3)
+    ref = fracture_mesh(comm, DOM, network=network(kink))
+    assert ok.remesh == "patch" and ok.fallback is None
+    assert hmin(ok.arrays.nodes, ok.arrays.tris) < (1 - TOL) * h0
+    assert hmin(ref.arrays.nodes, ref.arrays.tris) <= (1 + TOL) * hmin(ok.arrays.nodes, ok.arrays.tris)
+    # here the patch's cells are smaller than the geometry needs: the full mesh is taken
+    bend = before + [[0.7, -0.05]]
+    fm = fracture_mesh(comm, DOM, network=network(bend), previous=full, patch_radius=0.6)
+    ref = fracture_mesh(comm, DOM, network=network(bend))
+    assert fm.remesh == "full" and "smaller cell than a full remesh" in fm.fallback
+    assert hmin(fm.arrays.nodes, fm.arrays.tris) == hmin(ref.arrays.nodes, ref.arrays.tris)
+
+
+@pytest.mark.mpi
+def test_a_patch_checked_against_a_full_remesh_on_2_ranks():
+    """The check of :func:`test_a_patch_may_not_shorten_the_time_step` is collective: the full
+    mesh's arrays live on rank 0 only, and every rank takes the same mesh."""
+    comm = MPI.COMM_WORLD
+    before = [[0.5, 0.0], [0.6, 0.0]]
+    full = fracture_mesh(comm, DOM, network=network(before))
+    fm = fracture_mesh(comm, DOM, network=network(before + [[0.7, -0.05]]), previous=full, patch_radius=0.6)
+    assert all(r == ("full", True) for r in comm.allgather((fm.remesh, "smaller cell" in (fm.fallback or ""))))
+    cells = comm.allreduce(compat.num_cells_local(fm.mesh), op=MPI.SUM)
+    assert comm.rank != 0 or cells == len(fm.arrays.tris)
+
+
 def test_local_remeshing_restarts_where_the_straight_run_ends(tmp_path, run_command, mpirun):
     script = "scenarios/intersection_regularized.py"
     args = ["--quick", "--growth-remesh", "patch", "--frames", "2", "--t-end", "1.1e-3"]
