@@ -287,13 +287,9 @@ CELL_FLOOR_TOLERANCE = 0.02
 
 def smallest_inradius(nodes, tris):
     """The smallest inradius [m] of the triangles ``tris`` (t, 3) of ``nodes`` (n, 2): the
-    h of the solver's CFL bound (:attr:`hydrofrac.element.Geometry.inradius`)."""
-    T = nodes[tris]
-    edges = (np.linalg.norm(T[:, 1] - T[:, 2], axis=1) + np.linalg.norm(T[:, 2] - T[:, 0], axis=1)
-             + np.linalg.norm(T[:, 0] - T[:, 1], axis=1))
-    area = 0.5 * np.abs((T[:, 1, 0] - T[:, 0, 0]) * (T[:, 2, 1] - T[:, 0, 1])
-                        - (T[:, 2, 0] - T[:, 0, 0]) * (T[:, 1, 1] - T[:, 0, 1]))
-    return float((2.0 * area / edges).min()) if len(T) else math.inf
+    h of the solver's CFL bound (:func:`hydrofrac.element.inradius`)."""
+    from hydrofrac.element import inradius
+    return float(inradius(nodes[tris]).min()) if len(tris) else math.inf
 
 
 def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius: float, size: SizeLaw,
