@@ -134,6 +134,25 @@ def mesh_from_arrays(comm, nodes, cells, cell_tag, facets, facet_values, rank=0,
     return mesh, ct, ft
 
 
+def gmsh_compiled_size_callback(gmsh, address, data):
+    """Set Gmsh's mesh size callback to the compiled C function at ``address`` with the data
+    pointer ``data`` (a C-contiguous float64 array, kept alive by the caller until
+    ``gmsh.model.mesh.removeSizeCallback()``).  Gmsh 4.8's prototype (Debian 12):
+    ``double f(int dim, int tag, double x, double y, double z, void *data)``.  Returns False
+    (nothing set) for another Gmsh, whose prototype differs (4.11+ passes ``double lc`` before
+    ``data``): the caller then sets a Python callback (the same sizes, slower).  Port: compile
+    the callback with the new argument and accept that version here."""
+    import ctypes
+    if tuple(int(v) for v in gmsh.__version__.split(".")[:2]) != (4, 8):
+        return False
+    ierr = ctypes.c_int()
+    gmsh.lib.gmshModelMeshSetSizeCallback(ctypes.c_void_p(address), data.ctypes.data_as(ctypes.c_void_p),
+                                          ctypes.byref(ierr))
+    if ierr.value != 0:
+        raise RuntimeError(f"Gmsh refused the size callback (error {ierr.value})")
+    return True
+
+
 def meshtags(mesh, dim, entities, values):
     """Sorted MeshTags (0.9: ``dolfinx.mesh.meshtags`` unchanged)."""
     entities = np.asarray(entities, dtype=np.int32)

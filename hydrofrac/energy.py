@@ -14,7 +14,6 @@ from dataclasses import dataclass
 import numpy as np
 import ufl
 from mpi4py import MPI
-from petsc4py import PETSc
 
 from . import compat
 from .boundary import RADIATING, OuterState, Traction, Velocity, ufl_data
@@ -148,8 +147,7 @@ class EnergyAccount:
         """This rank's (power in, power out, upwind dissipation) sums (matrix-free); updates the
         ghosts first."""
         s = self.solver
-        if s.comm.size > 1:
-            s.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        s.update_ghosts(s.x)
         with s.x.localForm() as xl:
             X = xl.array_r
             r = np.array(s.matfree.boundary_rates(X, s.t, s.sigma0))

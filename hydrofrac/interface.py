@@ -518,7 +518,7 @@ class Interface:
         t0 = time.perf_counter()
         self._record_closing(dt)
         self.stage_state = self.state.copy()
-        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        self.solver.update_ghosts(x)
         self.evaluate(x, t, store=True)
         self.min_opening = np.minimum(self.min_opening, self.state[1])
         self.solver.timers.add("state update", time.perf_counter() - t0)

@@ -144,7 +144,7 @@ def _energy_row(problem) -> Dict:
 def _snapshot(problem):
     """The state a blow-up falls back to: fields, time, budget, extension states."""
     s = problem.solver
-    return (s.x.array_r.copy(), s.t, s.step_count, copy.deepcopy(s.energy.__dict__), s.account.last_rates,
+    return (s.x.array_r.copy(), s.t, s.step_count, dict(s.energy.__dict__), s.account.last_rates,
             [e.checkpoint_state() for e in s.extensions])
 
 

@@ -304,6 +304,7 @@ class Solver:
         self._build_operators()
         self.extensions = []
         self._ader_next = None  # (x's state, dt) for which the ADER predictor in _work[0] holds
+        self._x_ghosts = None  # x's PETSc state when its ghosts were last updated (update_ghosts)
         self.t = 0.0
         self.step_count = 0
         self.energy = EnergyBudget()
@@ -610,14 +611,26 @@ class Solver:
         own = compat.dof_counts(self.V)[0]
         return vec.array_r.reshape(own, ef.NCOMP)
 
+    def update_ghosts(self, vec):
+        """Forward ghost update of ``vec`` (several ranks); of the state x only if it was written
+        since its last update (its PETSc state counter, which every write through ``x.array``,
+        a local form or a Vec operation raises, and a ghost update does not): the end of a step,
+        the energy budget and the next step's first stage read the same x."""
+        if self.comm.size == 1:
+            return
+        if vec is self.x and self._x_ghosts == vec.stateGet():
+            return
+        vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        if vec is self.x:
+            self._x_ghosts = vec.stateGet()
+
     # ------------------------------------------------------------------ operator
     def rhs(self, y, t, out):
         """out = M^{-1}(K y + b(t)) + interface terms; returns the aux-state rates."""
         t0 = time.perf_counter()
         rates = None
         if self.matfree is not None:
-            if self.comm.size > 1:
-                y.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            self.update_ghosts(y)
             mf = self.matfree
             with y.localForm() as yl:
                 X = yl.array_r

@@ -68,9 +68,28 @@ def _size_at(x, y, pts, tips, wellbore_radius, h_crack, h_far, span, h_tip, tip_
     return h
 
 
+#: the length of :func:`_size_callback`'s data header: the two point counts and the law's 7 numbers
+_HEADER = 9
+
+
 if numba is not None:  # (no fast-math: the distances round as the tree's do)
     _nearest_sq = numba.njit(cache=True)(_nearest_sq)
     _size_at = numba.njit(cache=True)(_size_at)
+
+    @numba.cfunc(numba.types.float64(numba.types.int32, numba.types.int32, numba.types.float64, numba.types.float64,
+                                     numba.types.float64, numba.types.CPointer(numba.types.float64)), cache=True)
+    def _size_callback(dim, tag, x, y, z, data):
+        """:func:`_size_at` as Gmsh's compiled size callback (:func:`hydrofrac.compat.gmsh_compiled_size_callback`):
+        ``data`` is the array of ``SizeLaw.sampler(...).packed_near`` (the counts of the crack and tip
+        samples, the law's numbers, then the samples)."""
+        head = numba.carray(data, _HEADER)
+        nps, nts = int(head[0]), int(head[1])
+        buf = numba.carray(data, _HEADER + 2 * (nps + nts))
+        ps = buf[_HEADER:_HEADER + 2 * nps].reshape((nps, 2))
+        ts = buf[_HEADER + 2 * nps:].reshape((nts, 2))
+        return _size_at(x, y, ps, ts, head[2], head[3], head[4], head[5], head[6], head[7], head[8])
+else:  # pragma: no cover
+    _size_callback = None
 
 
 @dataclass(frozen=True)
@@ -128,7 +147,10 @@ class SizeLaw:
                 keep = np.all((p >= np.asarray(lo) - reach) & (p <= np.asarray(hi) + reach), axis=1)
                 return np.ascontiguousarray(p[keep])
             ps, ts = near(pts, span + self.h_crack), near(tip_pts, self.tip_radius + self.grading)
-            return lambda x, y: _size_at(x, y, ps, ts, *law)
+            f = lambda x, y: _size_at(x, y, ps, ts, *law)  # noqa: E731
+            # the same as one array, for the compiled callback (_size_callback)
+            f.packed = np.concatenate([[ps.shape[0], ts.shape[0]], law, ps.reshape(-1), ts.reshape(-1)])
+            return f
 
         sizes.scalar_near = scalar_near
         return sizes
@@ -265,6 +287,28 @@ def _area(xy):
     return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
+def _in_polygon(points, poly):
+    """Whether each point (m, 2) lies inside the closed polygon ``poly`` (k, 2) (even-odd
+    rule; the points here are triangle centroids, never on a polygon's edge, which is made of
+    triangle edges)."""
+    m, k = points.shape[0], poly.shape[0]
+    out = np.zeros(m, dtype=np.bool_)
+    for i in range(m):
+        x, y = points[i, 0], points[i, 1]
+        c = False
+        for j in range(k):
+            ax, ay = poly[j - 1, 0], poly[j - 1, 1]
+            bx, by = poly[j, 0], poly[j, 1]
+            if (ay > y) != (by > y) and x < ax + (y - ay) * (bx - ax) / (by - ay):
+                c = not c
+        out[i] = c
+    return out
+
+
+if numba is not None:
+    _in_polygon = numba.njit(cache=True)(_in_polygon)
+
+
 def _inside(points, nodes, tris):
     """Whether each point lies in one of the triangles (closed)."""
     a, b, c = nodes[tris[:, 0]], nodes[tris[:, 1]], nodes[tris[:, 2]]
@@ -350,13 +394,12 @@ def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius
             continue
         if len(loops) == 1:
             break
-        from matplotlib.path import Path as _Path
         areas = [abs(_area(old.nodes[lp])) for lp in loops]
         outer = int(np.argmax(areas))
         inside = np.zeros(nt, dtype=bool)
         for k, lp in enumerate(loops):
             if k != outer:
-                inside |= _Path(old.nodes[lp]).contains_points(cent)
+                inside |= _in_polygon(cent, np.ascontiguousarray(old.nodes[lp]))
         if not (inside & ~near).any():
             break  # several pieces, no island
         near |= inside
@@ -433,7 +476,9 @@ def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius
     # (Gmsh 4.8 passes (dim, tag, x, y, z), later versions also the size it would take)
     box = model.getBoundingBox(-1, -1)
     scalar = fn.scalar_near(box[:2], box[3:5])
-    model.mesh.setSizeCallback(lambda dim, tag, x, y, z, *lc: scalar(x, y))
+    # compiled: Gmsh asks for ~1400 sizes a patch, 7 us each through Python
+    if _size_callback is None or not compat.gmsh_compiled_size_callback(gmsh, _size_callback.address, scalar.packed):
+        model.mesh.setSizeCallback(lambda dim, tag, x, y, z, *lc: scalar(x, y))
     gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
     gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
     gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)

@@ -9,6 +9,7 @@
   run ends (the checkpoint keeps the mesh, which a full remesh of the same geometry would not
   give; rank 0 holds it, the other ranks write their part too).
 """
+import ctypes
 import json
 
 import numpy as np
@@ -19,7 +20,7 @@ from hydrofrac import ROCK, compat
 from hydrofrac.boundary import Absorbing
 from hydrofrac.interface import Crack, Interface, crack_facet_indices
 from hydrofrac.meshes.fractures import NATURAL, OUTER, PATH, Domain, Fracture, fracture_mesh
-from hydrofrac.meshes.patch import SizeLaw, _edge_key
+from hydrofrac.meshes.patch import SizeLaw, _edge_key, _in_polygon, _size_callback
 from hydrofrac.network import CrackLine, CrackNetwork
 from hydrofrac.solver import Solver
 from hydrofrac.transfer import continue_run, transfer_fields
@@ -187,8 +188,24 @@ def test_size_law_point_query_equals_the_vectorised_law():
         one = sizes.scalar_near(lo, hi)
         got[lo] = np.array([one(x, y) for x, y in xy])
         assert np.array_equal(got[lo], sizes(xy))
+        # the compiled callback Gmsh calls, on the same data packed into one array
+        data = one.packed.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
+        assert np.array_equal([_size_callback.ctypes(2, 1, x, y, 0.0, data) for x, y in xy], got[lo])
     assert got[(-5.0, -5.0)].min() < 0.1 and got[(-5.0, -5.0)].max() == law.h_far  # graded, and far away
     assert np.all(got[(-20.0, -20.0)] == law.h_far)
+
+
+def test_points_in_a_polygon_as_matplotlib_finds_them():
+    """The compiled even-odd test that finds the islands inside a patch classifies points as
+    matplotlib's Path does, for a polygon with concave corners."""
+    from matplotlib.path import Path
+    t = np.linspace(0.0, 2 * np.pi, 41)[:-1]
+    r = 1.0 + 0.4 * np.sin(5 * t)  # a star: concave corners
+    poly = np.stack([r * np.cos(t), r * np.sin(t)], axis=1)
+    pts = np.random.default_rng(3).uniform(-1.5, 1.5, size=(4000, 2))
+    inside = _in_polygon(pts, poly)
+    assert 0.2 < inside.mean() < 0.8
+    assert np.array_equal(inside, Path(poly).contains_points(pts))
 
 
 @pytest.mark.parametrize("default, argv, expected", [
