@@ -475,17 +475,21 @@ def segment_damages(iface, segments):
     for no segments: the paths, and so the segments, are the same on every rank)."""
     if not segments:
         return []
-    pts = iface.points.reshape(-1, 2)
-    Dall = iface.state[0].reshape(-1)
+    pts_all = iface.points.reshape(-1, 2)
+    D_all = iface.state[0].reshape(-1)
     local = np.zeros((len(segments), 2))
+    on = {}  # each crack's Gauss points, found once
     for k, (tag, p0, p1) in enumerate(segments):
+        if tag not in on:
+            idx = np.flatnonzero(np.repeat(iface.crack_tag == tag, iface.nq))
+            on[tag] = (pts_all[idx], D_all[idx])
+        pts, Dtag = on[tag]
         p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
         seg = p1 - p0
         L2 = float(seg @ seg)
-        on_tag = np.repeat(iface.crack_tag == tag, iface.nq)
         u = (pts - p0) @ seg / L2
         d = np.linalg.norm(pts - (p0 + np.clip(u, 0, 1)[:, None] * seg), axis=1)
-        D = Dall[on_tag & (u >= 0) & (u <= 1) & (d <= 1e-9 * max(1.0, np.sqrt(L2)))]
+        D = Dtag[(u >= 0) & (u <= 1) & (d <= 1e-9 * max(1.0, np.sqrt(L2)))]
         local[k] = D.sum(), D.size
     tot = iface.solver.comm.allreduce(local, op=MPI.SUM)
     return [t[0] / t[1] if t[1] else float("nan") for t in tot]
@@ -713,7 +717,7 @@ class GrowthDriver:
                 last[i] = t
             ready = [r and (i not in last or solver.t - last[i] >= self.da / self.max_speed * (1 - 1e-12))
                      for i, r in enumerate(ready)]
-        before_state = self.checkpoint_state(with_mesh=False)  # (restore_state takes no mesh)
+        before_state = self._state_before_check()  # (restore_state takes no mesh)
         before = [(t.point.copy(), t.direction.copy()) for t in self.tips]
         direction_of = None
         if self.params.direction == "cod":
@@ -907,11 +911,17 @@ class GrowthDriver:
         return out
 
     def current_speeds(self):
-        """Each tip's current speed [m/s]: that of its last extension (None before its second)."""
+        """Each tip's current speed [m/s]: that of its last extension (None before its second).
+        Kept while the events and paths are (checked at every criterion check)."""
+        key = (len(self.events), len(self.tips), tuple(len(p) for p in self.paths))
+        cached = getattr(self, "_speeds", None)
+        if cached is not None and cached[0] == key:
+            return list(cached[1])
         out = [None] * len(self.tips)
         for (t, i, _, _), v in zip(self.events, self.tip_speeds()):
             out[i] = v
-        return out
+        self._speeds = (key, out)
+        return list(out)
 
     def _nucleate(self, solver):
         """Start a crack at the best nucleation site if its s̆ reaches the strength (and the
@@ -998,6 +1008,31 @@ class GrowthDriver:
         return {"local_remeshes": kinds["patch"], "full_remesh_fallbacks": kinds["full_fallback"],
                 "fallback_reasons": dict(self.build.fallbacks)}
 
+    def _fingerprint(self):
+        """What :meth:`checkpoint_state` (without the mesh) depends on, cheaply: its lists only
+        grow (their lengths), a path only by new points (its last one), and the tips and arrest
+        points change in place (all of them)."""
+        return (self.count, len(self.events), len(self.modes), len(self.joined), len(self.nucleations),
+                len(self.tree), len(self.meshes), tuple(self.tags),
+                tuple((len(p),) + (tuple(np.asarray(p[-1]).tolist()) if len(p) else ()) for p in self.paths),
+                tuple(tuple(np.asarray(t.point).tolist()) + tuple(np.asarray(t.direction).tolist()) + (bool(t.active),)
+                      for t in self.tips),
+                tuple((i,) + tuple(np.asarray(p).tolist()) + tuple(np.asarray(e).tolist())
+                      for i, (p, e) in sorted(self.arrested.items())))
+
+    def _state_before_check(self):
+        """:meth:`checkpoint_state` without the mesh, for a check to fall back to: the text of
+        the last check's while the state has not changed since (a check without growth changes
+        nothing; the text grows with the run, 3 ms per check at the end of the full-size
+        re-fracture).  With adaptive meshes, always made anew (their levels are state too)."""
+        if self.adapt is not None:
+            return self.checkpoint_state(with_mesh=False)
+        fp = self._fingerprint()
+        cached = getattr(self, "_before_check", None)
+        if cached is None or cached[0] != fp:
+            cached = self._before_check = (fp, self.checkpoint_state(with_mesh=False))
+        return cached[1]
+
     def checkpoint_state(self, with_mesh=True):
         """The geometry state (JSON text): paths, tips, events, joins, remesh count, and with
         local remeshing the mesh (``with_mesh``)."""
@@ -1028,6 +1063,7 @@ class GrowthDriver:
         if len(d["tips"]) != len(tags) or tags[:len(self.tags)] != self.tags[:len(tags)]:
             raise ValueError(f"checkpoint has {len(d['tips'])} crack tips with tags {tags}, this run's tags are "
                              f"{self.tags}: restart with the same growth options")
+        self._speeds = self._before_check = None  # (the caches of current_speeds and _state_before_check)
         self.paths = [[np.asarray(q, float) for q in p] for p in d["paths"]]
         self.tags = list(tags)
         self.tips = [Tip(np.asarray(st["point"]), np.asarray(st["direction"]), st["active"]) for st in d["tips"]]

@@ -23,19 +23,15 @@ CRACK_FIELDS = ("opening", "slip", "traction_n", "traction_t", "D", "eta", "f_p"
 
 #: point sets whose location (owned cells, basis values, dof rows) each solver keeps: the
 #: growth criterion samples the same points around a tip at every check until it moves
-LOCATION_CACHE = 16
+LOCATION_CACHE = 64
 
 
-def _located(solver, X):
-    """(points, their owned cells' dof rows, basis values, the number of owned cells that
-    contain each point over all ranks) for the points ``X`` (m, 2); this rank's part of the
-    first three.  Cached per solver (a new mesh has a new solver) and point set; the count
-    is reduced when a point set is first located (collective)."""
-    key = X.tobytes()
-    cache = solver.__dict__.setdefault("_probe_locations", {})
-    hit = cache.get(key)
-    if hit is not None:
-        return hit
+def _locate(solver, sets):
+    """Locate the point sets ``sets`` (each (m_i, 2)) together: one bounding-box query and one
+    reduction of the counts for all (collective); returns each set's (points, their owned
+    cells' dof rows, basis values, the number of owned cells that contain each point over all
+    ranks), this rank's part of the first three."""
+    X = np.concatenate(sets) if sets else np.zeros((0, 2))
     nloc = compat.num_cells_local(solver.mesh)
     pts, cells = compat.cells_containing(solver.mesh, X)
     own = cells < nloc
@@ -45,11 +41,30 @@ def _located(solver, X):
     phi = solver.ref.tabulate(ref) if cells.size else np.zeros((0, compat.cell_dofs(solver.V).shape[1]))
     cnt = np.bincount(pts, minlength=X.shape[0]).astype(float)
     solver.comm.Allreduce(MPI.IN_PLACE, cnt, op=MPI.SUM)
-    hit = (pts, compat.cell_dofs(solver.V)[cells], phi, cnt)
-    if len(cache) >= LOCATION_CACHE:
-        cache.pop(next(iter(cache)))
-    cache[key] = hit
-    return hit
+    rows = compat.cell_dofs(solver.V)[cells]
+    out, start = [], 0
+    for S in sets:
+        k = (pts >= start) & (pts < start + S.shape[0])
+        out.append((pts[k] - start, rows[k], phi[k], cnt[start:start + S.shape[0]]))
+        start += S.shape[0]
+    return out
+
+
+def _located(solver, sets):
+    """:func:`_locate` of ``sets``, cached per solver (a new mesh has a new solver) and point
+    set: the sets not in the cache are located together (collective: every rank asks for the
+    same sets, so every rank misses the same ones)."""
+    cache = solver.__dict__.setdefault("_probe_locations", {})
+    keys = [X.tobytes() for X in sets]
+    found = [cache.get(k) for k in keys]
+    miss = [i for i, f in enumerate(found) if f is None]
+    if miss:
+        for i, hit in zip(miss, _locate(solver, [sets[i] for i in miss])):
+            found[i] = hit
+            if len(cache) >= LOCATION_CACHE:
+                cache.pop(next(iter(cache)))
+            cache[keys[i]] = hit
+    return found
 
 
 def field_at(solver, points) -> np.ndarray:
@@ -65,10 +80,9 @@ def fields_at(solver, point_sets) -> list:
     out = np.zeros((sum(sizes), 5))
     counts = []
     start = 0
-    for X, m in zip(sets, sizes):
-        pts, rows, phi, cnt = _located(solver, X)
+    U = solver.x.array_r.reshape(-1, 5)
+    for (pts, rows, phi, cnt), m in zip(_located(solver, sets), sizes):
         if pts.size:
-            U = solver.x.array_r.reshape(-1, 5)
             np.add.at(out, start + pts, np.einsum("kn,knc->kc", phi, U[rows]))
         counts.append(cnt)
         start += m

@@ -191,6 +191,42 @@ def test_tip_speeds_and_the_rayleigh_speed():
     assert ROCK.cR == pytest.approx(1663.2, abs=0.1)
 
 
+def test_state_before_a_check_follows_every_change():
+    """The state a check falls back to (kept between checks while nothing changes) is always
+    the driver's current state: after an extension, a tip's move or stop, an arrest point's
+    move, and unchanged (the same text) when nothing changed; the cached current speeds too."""
+    from hydrofrac.growth import GrowthDriver, Tip
+    d = GrowthDriver(lambda polylines: SimpleNamespace(), [Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0])),
+                                                          Tip(np.array([0.0, 1.0]), np.array([0.0, 1.0]))],
+                     GrowthParams(r=0.1), da=0.2, threshold=1.0, tags=[300, 301])
+
+    def same():
+        got = d._state_before_check()
+        assert got == d.checkpoint_state(with_mesh=False)
+        return got
+
+    first = same()
+    assert d._state_before_check() is first  # nothing changed: the kept text
+    d.paths[0].append(np.array([0.2, 0.0]))
+    d.events.append((1e-4, 0, 0.0, 1.0))
+    assert d.current_speeds() == [None, None]
+    second = same()
+    assert second != first
+    d.paths[0].append(np.array([0.4, 0.0]))
+    d.events.append((2e-4, 0, 0.0, 1.0))
+    assert d.current_speeds() == [pytest.approx(2000.0), None]
+    d.tips[1].point = np.array([0.0, 1.2])
+    assert same() != second
+    d.tips[1].active = False
+    third = same()
+    d.arrested[1] = (np.array([0.0, 1.2]), np.array([1.0, 0.0]))
+    fourth = same()
+    d.arrested[1] = (np.array([0.0, 1.3]), np.array([1.0, 0.0]))  # moved in place (a crossing check)
+    assert len({third, fourth, same()}) == 3
+    d.restore_state(first)
+    assert same() == first and d.current_speeds() == [None, None]
+
+
 def nucleation_run(sigma0, beta, steps=12, comm=MPI.COMM_WORLD):
     """An uncracked block held at a uniform stress ``sigma0`` by absorbing sides, with
     nucleation (s_bar = 2 MPa, the damage law's) checked every 5 steps; returns the driver."""

@@ -32,6 +32,39 @@ def test_field_at_is_exact_for_fields_in_the_space():
     check_field_at()
 
 
+def check_point_sets_located_together(monkeypatch):
+    """Several point sets (the growth criterion's, one per tip): the sets not located yet on
+    this mesh are located in one query (and one reduction), the others come from the cache,
+    and every set gets the values it gets alone."""
+    import hydrofrac.probes as pr
+    mesh = compat.create_rectangle(MPI.COMM_WORLD, (0.0, 0.0), (1.0, 1.0), 5, 4)
+    solver = Solver(mesh, 2, ROCK)
+    solver.set_initial_state(quadratic)
+    rng = np.random.default_rng(2)
+    sets = [rng.uniform(0, 1, size=(n, 2)) for n in (7, 5, 9)]
+    alone = [field_at(solver, X) for X in sets]  # (a solver of its own: each set located alone)
+    solver = Solver(mesh, 2, ROCK)
+    solver.set_initial_state(quadratic)
+    queries = []
+    real = pr.compat.cells_containing
+    monkeypatch.setattr(pr.compat, "cells_containing", lambda m, X: queries.append(len(X)) or real(m, X))
+    field_at(solver, sets[1])
+    got = pr.fields_at(solver, sets)
+    assert queries == [5, 16]  # the second set alone, then the two others together
+    for g, a in zip(got, alone):
+        np.testing.assert_array_equal(g, a)
+    assert pr.fields_at(solver, sets[::-1]) and queries == [5, 16]  # all cached now
+
+
+def test_point_sets_located_together(monkeypatch):
+    check_point_sets_located_together(monkeypatch)
+
+
+@pytest.mark.mpi
+def test_point_sets_located_together_mpi(monkeypatch):
+    check_point_sets_located_together(monkeypatch)
+
+
 @pytest.mark.mpi
 def test_field_at_is_exact_for_fields_in_the_space_mpi():
     check_field_at()
