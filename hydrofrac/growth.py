@@ -491,8 +491,8 @@ def segment_damages(iface, segments):
         d = np.linalg.norm(pts - (p0 + np.clip(u, 0, 1)[:, None] * seg), axis=1)
         D = Dtag[(u >= 0) & (u <= 1) & (d <= 1e-9 * max(1.0, np.sqrt(L2)))]
         local[k] = D.sum(), D.size
-    tot = iface.solver.comm.allreduce(local, op=MPI.SUM)
-    return [t[0] / t[1] if t[1] else float("nan") for t in tot]
+    iface.solver.comm.Allreduce(MPI.IN_PLACE, local, op=MPI.SUM)
+    return [t[0] / t[1] if t[1] else float("nan") for t in local]
 
 
 def check_interval(solver, check_every):
