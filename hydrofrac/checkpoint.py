@@ -10,7 +10,10 @@ Every decision about a checkpoint is collective:
   readable and consistent before any rank uses it; a bad checkpoint is the same clear
   :class:`CheckpointError` on every rank, naming the file and what to do;
 * a save that fails on any rank (a full disk, no write permission) is the same
-  :class:`CheckpointError` on every rank, and leaves the previous checkpoint in place.
+  :class:`CheckpointError` on every rank, and leaves the previous checkpoint in place;
+* a save keeps each rank's previous file (``state_r<rank>.prev.npz``) until its new one is in
+  place, so a run killed while the ranks replace their files (some new, some old) restarts from
+  the newest step that every rank still has, never from files of different steps.
 """
 from __future__ import annotations
 
@@ -72,8 +75,15 @@ class Checkpoint:
         self.dir = Path(out) / "checkpoint"
         self.comm = comm
 
-    def path(self, rank=None) -> Path:
-        return self.dir / f"state_r{self.comm.rank if rank is None else rank}.npz"
+    def path(self, rank=None, previous=False) -> Path:
+        r = self.comm.rank if rank is None else rank
+        return self.dir / (f"state_r{r}.prev.npz" if previous else f"state_r{r}.npz")
+
+    def _replace(self, tmp):
+        """This rank's new file in place, its current one kept as the previous generation."""
+        if self.path().exists():
+            self.path().replace(self.path(previous=True))
+        tmp.replace(self.path())
 
     # ------------------------------------------------------------------ save
     def save(self, problem, frames, frames_done: int, params: Dict, monitors, loop, geometry: str = "",
@@ -103,8 +113,8 @@ class Checkpoint:
         # every rank has its new file before any replaces its old one; a rank that cannot write
         # leaves every rank's previous checkpoint in place
         self._on_every_rank(lambda: np.savez(tmp, **data), "write its file", cleanup=lambda: tmp.unlink(missing_ok=True))
-        self._on_every_rank(lambda: tmp.replace(self.path()), "replace its file",
-                            kept="the ranks' files may now be of different steps, which a restart refuses")
+        self._on_every_rank(lambda: self._replace(tmp), "replace its file",
+                            kept="a restart uses the newest step every rank's files still hold")
 
     def _on_every_rank(self, action, what, cleanup=None, kept="the previous checkpoint, if any, is kept"):
         """Run ``action`` on this rank and agree on the outcome (collective): if it failed on
@@ -120,9 +130,10 @@ class Checkpoint:
                                   "--out, then restart")
 
     # ------------------------------------------------------------------ read and validate
-    def _read_own(self):
-        """(status, data or message) of this rank's file: 'none' (absent), 'ok' or 'bad'."""
-        p = self.path()
+    def _read_own(self, previous=False):
+        """(status, data or message) of this rank's file (or its previous generation): 'none'
+        (absent), 'ok' or 'bad'."""
+        p = self.path(previous=previous)
         if not p.exists():
             return "none", f"{p} is missing"
         try:
@@ -143,9 +154,28 @@ class Checkpoint:
         has a checkpoint.  Raises :class:`CheckpointError` (on every rank) for a damaged
         checkpoint, one written by another number of ranks, or one whose ranks disagree."""
         status, data = self._read_own()
-        meta = (status, data if status != "ok" else None,
-                None if status != "ok" else (int(data["ranks"]), float(data["t"]), int(data["step"])))
-        allm = self.comm.allgather(meta)
+
+        def meta_of(status, data):
+            return (status, data if status != "ok" else None,
+                    None if status != "ok" else (int(data["ranks"]), float(data["t"]), int(data["step"])))
+
+        allm = self.comm.allgather(meta_of(status, data))
+        if len({m[2][1:] for m in allm if m[0] == "ok"}) > 1 or (
+                any(m[0] == "ok" for m in allm) and any(m[0] == "none" for m in allm)):
+            # the ranks' files of different steps, or some missing: a save interrupted while the
+            # ranks replaced their files; the newest step every rank still has, from either generation
+            prev = self._read_own(previous=True)
+            allp = self.comm.allgather(meta_of(*prev))
+            have = [{m[2][1:] for m in pair if m[0] == "ok"} for pair in zip(allm, allp)]
+            common = set.intersection(*have)
+            if common:
+                newest = max(common, key=lambda tk: tk[1])
+                if meta_of(status, data)[2] is None or meta_of(status, data)[2][1:] != newest:
+                    status, data = prev
+                allm = self.comm.allgather(meta_of(status, data))
+                if self.comm.rank == 0:
+                    print(f"[hydrofrac] the last checkpoint save was interrupted; restarting from step {newest[1]}, "
+                          "the newest one every rank's files hold", flush=True)
         if all(m[0] == "none" for m in allm):
             others = sorted(self.dir.glob("state_r*.npz")) if self.dir.exists() else []
             if others:  # files of other ranks only: a checkpoint of more ranks

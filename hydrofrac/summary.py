@@ -34,8 +34,12 @@ def build_summary(problem, name: str, wall: float, work: float, steps_run: int, 
         t_rm = solver.timers.t.get("remesh", 0.0)
         setup = comm.allreduce(getattr(solver, "remesh_setup_s", 0.0), op=compat.MPI.MAX)
         n = max(int(remesh_info), 1)
+        stepping = wall - t_rm
+        crit = summary["time_split_s"].get("growth criterion", 0.0)
         summary["remeshing"] = {"remeshes": remesh_info, "wall_s": t_rm, "share": t_rm / wall if wall > 0 else 0.0,
-                                "per_remesh_s": t_rm / n, "solver_setup_per_remesh_s": setup / n}
+                                "per_remesh_s": t_rm / n, "solver_setup_per_remesh_s": setup / n,
+                                # the growth criterion against the steps' cost (the wall time less remeshing)
+                                "criterion_share_of_steps": crit / stepping if stepping > 0 else 0.0}
     if accuracy:
         summary["accuracy"] = accuracy
     return summary
@@ -103,7 +107,8 @@ def print_summary(s: Dict, file=sys.stdout):
         r = s["remeshing"]
         lines.append(f"  remeshing   {r['remeshes']} remeshes, {r['wall_s']:.2f} s "
                      f"({100 * r['share']:.0f}% of the wall time), {r.get('per_remesh_s', 0.0):.3f} s each, of which "
-                     f"solver set-up {r.get('solver_setup_per_remesh_s', 0.0):.3f} s")
+                     f"solver set-up {r.get('solver_setup_per_remesh_s', 0.0):.3f} s; the growth criterion "
+                     f"{100 * r.get('criterion_share_of_steps', 0.0):.1f}% of the steps' cost")
     for k, v in s.get("accuracy", {}).items():
         lines.append(f"  accuracy    {k} = {v:.4g}" if isinstance(v, float) else f"  accuracy    {k} = {v}")
     lines.append(f"  output      {s['output']['paraview']} (ParaView), {s['output']['history']}")

@@ -127,6 +127,10 @@ def test_crack_growth_scenario_on_one_and_two_ranks(tmp_path, run_command, mpiru
     assert r["remeshes"] == acc["remeshes"] and 0 < r["share"] < 1
     # the new solvers' set-up is part of each remesh
     assert 0 < r["solver_setup_per_remesh_s"] < r["per_remesh_s"] == pytest.approx(r["wall_s"] / r["remeshes"])
+    # the criterion's share: its time against the wall time less remeshing
+    crit = s[1]["time_split_s"]["growth criterion"]
+    assert r["criterion_share_of_steps"] == pytest.approx(crit / (s[1]["wall_time_s"] - r["wall_s"]))
+    assert 0 < r["criterion_share_of_steps"] < 1
     assert s[1]["energy"]["transfer_loss"] > 0
     assert abs(s[1]["energy"]["balance_error_relative"]) < 1e-3
     for key in ("remeshes", "extensions", "tip0_first_kink_deg", "tip1_first_kink_deg", "tip0_grown_m", "tip1_grown_m"):

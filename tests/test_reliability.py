@@ -113,6 +113,28 @@ def test_kill_and_restart_on_two_ranks_ends_as_a_straight_run(tmp_path, script, 
                           "refracture": {"nucleation"}}.get(name, set()), events
 
 
+def test_restart_after_a_save_interrupted_between_the_ranks(tmp_path):
+    """Killed while the ranks replace their checkpoint files (rank 0 has the new step, rank 1
+    still the previous one): the restart takes the newest step both ranks hold (rank 0's
+    previous generation), says so, and ends as the straight run does."""
+    cmd = [*_mpi(2), SC / "two_bars.py", "--quick", "--frames", "3", "--checkpoint-steps", "20"]
+    straight, cut = tmp_path / "straight", tmp_path / "cut"
+    _run([*cmd, "--t-end", "2e-4", "--out", straight], timeout=300)
+    _run([*cmd, "--t-end", "1e-4", "--out", cut], timeout=300)
+    ck = cut / "checkpoint"
+    (ck / "state_r1.prev.npz").replace(ck / "state_r1.npz")  # rank 1: the older step only
+    for p in (ck / "state_r0.npz", ck / "state_r0.prev.npz"):
+        assert p.exists()
+    res = _run([*cmd, "--t-end", "2e-4", "--out", cut, "--restart"], timeout=300)
+    assert "save was interrupted" in res.stdout and "restarted from" in res.stdout
+    a = json.loads((straight / "summary.json").read_text())
+    b = json.loads((cut / "summary.json").read_text())
+    assert _comparable(a) == _comparable(b)
+    ta, fa = _last_frame(straight, "two_bars")
+    tb, fb = _last_frame(cut, "two_bars")
+    assert ta == tb and all(fa[k] == fb[k] for k in fa)
+
+
 def test_restart_of_a_finished_run_touches_nothing(tmp_path):
     """A requeued job (the same command with --restart) says the run has finished and leaves
     its summary, history and frames as they were."""
