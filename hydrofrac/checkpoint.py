@@ -170,7 +170,8 @@ class Checkpoint:
             common = set.intersection(*have)
             if common:
                 newest = max(common, key=lambda tk: tk[1])
-                if meta_of(status, data)[2] is None or meta_of(status, data)[2][1:] != newest:
+                mine = meta_of(status, data)[2]
+                if mine is None or mine[1:] != newest:
                     status, data = prev
                 allm = self.comm.allgather(meta_of(status, data))
                 if self.comm.rank == 0:

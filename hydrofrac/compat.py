@@ -219,7 +219,7 @@ def facet_owned_mask(mesh):
 
 # --- spaces and functions -------------------------------------------------------
 #: the compiled elements of :func:`dg_space`, by UFL element: (ufcx element, ufcx dofmap, their
-#: module, the C++ element); an element does not depend on the mesh, so a new mesh (a remesh)
+#: module's cffi FFI, the C++ element); an element does not depend on the mesh, so a new mesh (a remesh)
 #: only numbers its dofs
 _COMPILED_ELEMENTS = {}
 
@@ -227,7 +227,7 @@ _COMPILED_ELEMENTS = {}
 def dg_space(mesh, degree, dim=None):
     """Discontinuous Lagrange space; ``dim`` components in one blocked dofmap
     (0.9: ``functionspace(mesh, ("DG", degree, (dim,)))``).  The element is compiled (or found
-    in FFCx's cache, 7 ms a space) once per process; a space on a new mesh then builds only its
+    in FFCx's cache: 1.4 ms of the 1.8 ms of a P2 x 5 space on 3200 cells) once per process; a space on a new mesh then builds only its
     dofmap, as ``dolfinx.fem.FunctionSpace`` does after its JIT call (0.9: the same
     ``FunctionSpace(mesh, element, cppV)`` path)."""
     if dim is None:

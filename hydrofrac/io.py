@@ -79,7 +79,6 @@ class _Appended:
         return xml
 
 
-
 def write_vtu(path, points, cells, cell_type, point_data=None, cell_data=None):
     """One unstructured-grid piece: points (m, 2|3), cells (k, nodes per cell)."""
     points = np.asarray(points, dtype=np.float64)
