@@ -160,10 +160,11 @@ class Checkpoint:
                     None if status != "ok" else (int(data["ranks"]), float(data["t"]), int(data["step"])))
 
         allm = self.comm.allgather(meta_of(status, data))
-        if len({m[2][1:] for m in allm if m[0] == "ok"}) > 1 or (
-                any(m[0] == "ok" for m in allm) and any(m[0] == "none" for m in allm)):
-            # the ranks' files of different steps, or some missing: a save interrupted while the
-            # ranks replaced their files; the newest step every rank still has, from either generation
+        whole = all(m[0] == "ok" for m in allm) and len({m[2][1:] for m in allm}) == 1
+        if not whole and not any(m[0] == "bad" for m in allm):
+            # the ranks' files of different steps, or some or all missing: a save interrupted
+            # while the ranks replaced their files (each moves its file to the previous generation,
+            # then its new one into place); the newest step every rank still has, from either one
             prev = self._read_own(previous=True)
             allp = self.comm.allgather(meta_of(*prev))
             have = [{m[2][1:] for m in pair if m[0] == "ok"} for pair in zip(allm, allp)]
@@ -178,7 +179,8 @@ class Checkpoint:
                     print(f"[hydrofrac] the last checkpoint save was interrupted; restarting from step {newest[1]}, "
                           "the newest one every rank's files hold", flush=True)
         if all(m[0] == "none" for m in allm):
-            others = sorted(self.dir.glob("state_r*.npz")) if self.dir.exists() else []
+            others = sorted(p for p in self.dir.glob("state_r*.npz") if not p.name.endswith(".prev.npz")) \
+                if self.dir.exists() else []
             if others:  # files of other ranks only: a checkpoint of more ranks
                 raise CheckpointError(f"checkpoint in {self.dir} was not written by this run's {self.comm.size} "
                                       f"rank(s) (files: {', '.join(p.name for p in others)}); restart with the "

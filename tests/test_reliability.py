@@ -113,18 +113,24 @@ def test_kill_and_restart_on_two_ranks_ends_as_a_straight_run(tmp_path, script, 
                           "refracture": {"nucleation"}}.get(name, set()), events
 
 
-def test_restart_after_a_save_interrupted_between_the_ranks(tmp_path):
-    """Killed while the ranks replace their checkpoint files (rank 0 has the new step, rank 1
-    still the previous one): the restart takes the newest step both ranks hold (rank 0's
-    previous generation), says so, and ends as the straight run does."""
+@pytest.mark.parametrize("moment", ["between_the_ranks", "between_the_renames"])
+def test_restart_after_a_save_interrupted_between_the_ranks(tmp_path, moment):
+    """Killed while the ranks replace their checkpoint files: rank 0 has the new step and rank 1
+    still the previous one, or both have moved their file to the previous generation and not
+    yet put the new one in place.  The restart takes the newest step both ranks hold, says so,
+    and ends as the straight run does."""
     cmd = [*_mpi(2), SC / "two_bars.py", "--quick", "--frames", "3", "--checkpoint-steps", "20"]
     straight, cut = tmp_path / "straight", tmp_path / "cut"
     _run([*cmd, "--t-end", "2e-4", "--out", straight], timeout=300)
     _run([*cmd, "--t-end", "1e-4", "--out", cut], timeout=300)
     ck = cut / "checkpoint"
-    (ck / "state_r1.prev.npz").replace(ck / "state_r1.npz")  # rank 1: the older step only
-    for p in (ck / "state_r0.npz", ck / "state_r0.prev.npz"):
+    for p in (ck / "state_r0.npz", ck / "state_r0.prev.npz", ck / "state_r1.prev.npz"):
         assert p.exists()
+    if moment == "between_the_ranks":
+        (ck / "state_r1.prev.npz").replace(ck / "state_r1.npz")  # rank 1: the older step only
+    else:
+        for r in (0, 1):
+            (ck / f"state_r{r}.npz").replace(ck / f"state_r{r}.prev.npz")  # no rank has a current file
     res = _run([*cmd, "--t-end", "2e-4", "--out", cut, "--restart"], timeout=300)
     assert "save was interrupted" in res.stdout and "restarted from" in res.stdout
     a = json.loads((straight / "summary.json").read_text())
