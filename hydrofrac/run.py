@@ -15,7 +15,6 @@ run restarted says so and leaves its output untouched.
 """
 from __future__ import annotations
 
-import copy
 import math
 import time
 from dataclasses import dataclass, field

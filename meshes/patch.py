@@ -80,7 +80,7 @@ if numba is not None:  # (no fast-math: the distances round as the tree's do)
                                      numba.types.float64, numba.types.CPointer(numba.types.float64)), cache=True)
     def _size_callback(dim, tag, x, y, z, data):
         """:func:`_size_at` as Gmsh's compiled size callback (:func:`hydrofrac.compat.gmsh_compiled_size_callback`):
-        ``data`` is the array of ``SizeLaw.sampler(...).packed_near`` (the counts of the crack and tip
+        ``data`` is ``SizeLaw.sampler(...).scalar_near(...).packed`` (the counts of the crack and tip
         samples, the law's numbers, then the samples)."""
         head = numba.carray(data, _HEADER)
         nps, nts = int(head[0]), int(head[1])
