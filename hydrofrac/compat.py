@@ -123,10 +123,11 @@ def mesh_from_arrays(comm, nodes, cells, cell_tag, facets, facet_values, rank=0,
     mesh = dolfinx.mesh.create_mesh(comm, cells, x, domain, ghost_mode=GHOST_MODE,
                                     partitioner=dolfinx.mesh.create_cell_partitioner(_ordered_partition))
     tdim = mesh.topology.dim
-    ent, val = dolfinx.cpp.io.distribute_entity_data(mesh._mesh, tdim, cells,
-                                                     np.full(cells.shape[0], cell_tag, np.int32))
-    mesh.topology.create_connectivity(tdim, 0)
-    ct = dolfinx.mesh.meshtags_from_entities(mesh, tdim, AdjacencyList_int32(ent), val.astype(np.int32))
+    # every cell has the one tag: each rank tags its cells, ghosts included (what distributing
+    # the tag of every input cell gives, without the exchange)
+    imap = mesh.topology.index_map(tdim)
+    n = imap.size_local + imap.num_ghosts
+    ct = dolfinx.mesh.meshtags(mesh, tdim, np.arange(n, dtype=np.int32), np.full(n, cell_tag, np.int32))
     ct.name = "Cell tags"
     ent, val = dolfinx.cpp.io.distribute_entity_data(mesh._mesh, tdim - 1, facets, facet_values)
     mesh.topology.create_connectivity(tdim - 1, tdim)

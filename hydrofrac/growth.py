@@ -306,9 +306,9 @@ def cod_direction(iface, tag, tip, params: GrowthParams):
     of the maximum-s̆ criterion of the singular field (:func:`near_tip_direction`, with
     ``params.beta``), times ``params.cod_relax``.  None if the crack has no points there or
     is not open."""
-    pts = iface.points.reshape(-1, 2)
-    on = np.repeat(iface.crack_tag == tag, iface.nq) & (np.linalg.norm(pts - np.asarray(tip, float), axis=1)
-                                                        <= (params.cod_window or params.r))
+    on = iface.points_of_crack(tag)
+    on = on[np.linalg.norm(iface.points.reshape(-1, 2)[on] - np.asarray(tip, float), axis=1)
+            <= (params.cod_window or params.r)]
     w = iface.weights.reshape(-1)[on]
     tot = iface.solver.comm.allreduce(np.array([w @ iface.state[1].reshape(-1)[on],
                                                 w @ iface.state[2].reshape(-1)[on], w.size], dtype=float),
@@ -475,21 +475,10 @@ def segment_damages(iface, segments):
     for no segments: the paths, and so the segments, are the same on every rank)."""
     if not segments:
         return []
-    pts_all = iface.points.reshape(-1, 2)
     D_all = iface.state[0].reshape(-1)
     local = np.zeros((len(segments), 2))
-    on = {}  # each crack's Gauss points, found once
     for k, (tag, p0, p1) in enumerate(segments):
-        if tag not in on:
-            idx = np.flatnonzero(np.repeat(iface.crack_tag == tag, iface.nq))
-            on[tag] = (pts_all[idx], D_all[idx])
-        pts, Dtag = on[tag]
-        p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
-        seg = p1 - p0
-        L2 = float(seg @ seg)
-        u = (pts - p0) @ seg / L2
-        d = np.linalg.norm(pts - (p0 + np.clip(u, 0, 1)[:, None] * seg), axis=1)
-        D = Dtag[(u >= 0) & (u <= 1) & (d <= 1e-9 * max(1.0, np.sqrt(L2)))]
+        D = D_all[iface.points_on_segment(tag, p0, p1)]
         local[k] = D.sum(), D.size
     iface.solver.comm.Allreduce(MPI.IN_PLACE, local, op=MPI.SUM)
     return [t[0] / t[1] if t[1] else float("nan") for t in local]
@@ -850,15 +839,15 @@ class GrowthDriver:
         if iface is None:
             return (float("nan"), False)
         tag, tip = self.tags[i], np.asarray(self.paths[i][-1], float)
-        mine = np.repeat(iface.crack_tag == tag, iface.nq)
-        near = mine & (np.linalg.norm(iface.points.reshape(-1, 2) - tip, axis=1) <= (self.params.cod_window
-                                                                                      or self.params.r))
+        mine = iface.points_of_crack(tag)
+        near = mine[np.linalg.norm(iface.points.reshape(-1, 2)[mine] - tip, axis=1) <= (self.params.cod_window
+                                                                                         or self.params.r)]
         w = iface.weights.reshape(-1)
         hyd = getattr(getattr(self, "problem", None), "hydraulics", None)
         fp = hyd.fp_q.reshape(-1) if hyd is not None else np.zeros(w.size)
         tot = iface.solver.comm.allreduce(np.array([w[near] @ np.maximum(iface.state[1].reshape(-1)[near], 0.0),
                                                     w[near] @ iface.state[2].reshape(-1)[near],
-                                                    float(near.sum()), w[mine] @ fp[mine]]), op=MPI.SUM)
+                                                    float(near.size), w[mine] @ fp[mine]]), op=MPI.SUM)
         mix = float(np.degrees(np.arctan2(abs(tot[1]), tot[0]))) if tot[2] > 0 else float("nan")
         return (mix, bool(tot[3] > 0))
 

@@ -255,6 +255,7 @@ class Interface:
         self.nq = s.size
         self.points = va[:, None, :] + s[None, :, None] * tang[:, None, :]  # (nf, nq, 2)
         self.weights = w[None, :] * length[:, None]  # (nf, nq)
+        self._points_of_crack, self._on_segment = {}, {}  # (points_on_segment)
         pts = self.points.reshape(-1, 2)
         ref = solver.ref
         g = solver.geometry
@@ -603,6 +604,31 @@ class Interface:
             pd[k] = np.concatenate([v[:, :1], v, v[:, -1:]], axis=1).reshape(-1)
         cd = {"crack": np.repeat(self.crack_tag, npf - 1).astype(np.int32)}
         return {"cracks": Part(pts, cells, VTK_LINE, pd, cd)}
+
+    def points_of_crack(self, tag):
+        """Indices into the flattened Gauss points (and ``state[k].reshape(-1)``) of crack
+        ``tag``'s points, in order (kept per crack: an interface lives on one mesh)."""
+        on = self._points_of_crack.get(int(tag))
+        if on is None:
+            on = self._points_of_crack[int(tag)] = np.flatnonzero(np.repeat(self.crack_tag == tag, self.nq))
+        return on
+
+    def points_on_segment(self, tag, p0, p1):
+        """Indices into the flattened Gauss points (and ``state[k].reshape(-1)``) of crack
+        ``tag``'s points on the segment p0 -> p1 (within 1e-9 of its length, or of 1 m).  Kept
+        for each segment met: an interface lives on one mesh, so its points do not move."""
+        key = (int(tag), *np.asarray(p0, float).tolist(), *np.asarray(p1, float).tolist())
+        idx = self._on_segment.get(key)
+        if idx is None:
+            on = self.points_of_crack(tag)
+            pts = self.points.reshape(-1, 2)[on]
+            p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+            seg = p1 - p0
+            L2 = float(seg @ seg)
+            u = (pts - p0) @ seg / L2
+            d = np.linalg.norm(pts - (p0 + np.clip(u, 0, 1)[:, None] * seg), axis=1)
+            idx = self._on_segment[key] = on[(u >= 0) & (u <= 1) & (d <= 1e-9 * max(1.0, np.sqrt(L2)))]
+        return idx
 
     # ------------------------------------------------------------------ checkpoint
     def checkpoint_state(self):

@@ -163,6 +163,9 @@ def check_polyline(name, pts, domain: Domain, on_wellbore_start=False):
     """Raise ValueError (what to change) if a crack polyline leaves the domain, enters the
     wellbore, has a zero-length segment or crosses itself."""
     pts = np.asarray(pts, dtype=float)
+    key = (domain, bool(on_wellbore_start), pts.shape, pts.tobytes())
+    if key in _VALID_POLYLINES:  # (a network's unchanged lines, at every remesh)
+        return pts
     if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape[0] < 2 or not np.all(np.isfinite(pts)):
         raise ValueError(f"{name}: needs at least two finite (x, y) points; got {pts.tolist()}")
     seg = np.diff(pts, axis=0)
@@ -188,7 +191,14 @@ def check_polyline(name, pts, domain: Domain, on_wellbore_start=False):
     i, j = np.nonzero(np.triu(cross, k=2))  # (a segment and its neighbours share an end)
     if i.size:
         raise ValueError(f"{name}: crosses itself (segments {i[0]} and {j[0]}); give a simple polyline")
+    if len(_VALID_POLYLINES) >= 4096:
+        _VALID_POLYLINES.clear()
+    _VALID_POLYLINES.add(key)
     return pts
+
+
+#: (domain, on_wellbore_start, shape, bytes) of the polylines :func:`check_polyline` passed
+_VALID_POLYLINES: set = set()
 
 
 def _line_name(tag):
@@ -204,6 +214,10 @@ def check_no_crossings(lines):
     items = [(t, np.asarray(pts, dtype=float)) for t, pts in lines.items()]
     if len(items) < 2:
         return
+    # pairs of lines that the last clean call checked already, unchanged, are skipped (a growing
+    # network adds a segment or two per remesh; its other lines were checked against each other)
+    keys = [(t, a.shape, a.tobytes()) for t, a in items]
+    known = np.array([k in _CLEAN_LINES for k in keys])
     # each line's segments against the segments of all later lines in one table (the pairs'
     # arithmetic is the one of a table per pair of lines; memory: one line's rows at a time)
     a0 = np.concatenate([a[:-1] for _, a in items])
@@ -211,7 +225,11 @@ def check_no_crossings(lines):
     line = np.repeat(np.arange(len(items)), [len(a) - 1 for _, a in items])
     start = np.r_[0, np.cumsum([len(a) - 1 for _, a in items])]
     for ia in range(len(items) - 1):
-        rows, rest = slice(start[ia], start[ia + 1]), slice(start[ia + 1], None)
+        rows, rest = slice(start[ia], start[ia + 1]), np.arange(start[ia + 1], a0.shape[0])
+        if known[ia]:
+            rest = rest[~known[line[rest]]]
+            if not rest.size:
+                continue
         cross, overlap = _cross_segments(a0[rows], a1[rows], a0[rest], a1[rest])
         i, j = np.nonzero(cross | overlap)
         if i.size:  # named by the first later line it meets, and the first bad pair of segments
@@ -220,6 +238,12 @@ def check_no_crossings(lines):
             raise ValueError(f"{_line_name(items[ia][0])} and {_line_name(tb)} "
                              f"{'overlap' if overlap[i[k], j[k]] else 'cross'}; move one of them (cracks may "
                              "end on each other, not cross)")
+    _CLEAN_LINES.clear()
+    _CLEAN_LINES.update(keys)
+
+
+#: the lines (tag, shape, bytes) of the last network that :func:`check_no_crossings` passed
+_CLEAN_LINES: set = set()
 
 
 def check_domain(d: Domain):

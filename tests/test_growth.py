@@ -294,3 +294,34 @@ def test_nucleation_same_on_one_and_two_ranks():
     assert len(par) == len(ser) == 1
     np.testing.assert_allclose(par[0][1], ser[0][1], atol=1e-9)
     assert par[0][2] == pytest.approx(ser[0][2], abs=1e-9)
+
+
+def test_segment_damage_from_the_points_kept_per_segment():
+    """A growth check reads the mean damage on each path's last segment from the Gauss points
+    the interface keeps per segment (found once per mesh): the same points and mean as a search
+    over all the crack's points, on any state; another segment has its own points."""
+    from hydrofrac.growth import segment_damages
+    from hydrofrac.meshes.fractures import PATH
+    comm = MPI.COMM_WORLD
+    dom = Domain(half_width=1.0, half_height=1.0, wellbore_radius=0.0, h_crack=0.05, h_far=0.3, grading=0.5)
+    path = np.array([[-0.5, 0.0], [0.0, 0.1], [0.4, -0.2]])
+    fm = fracture_mesh(comm, dom, paths=[path])
+    cracks = [Crack(PATH, friction=0.0, damage=0.0)]
+    solver = Solver(fm.mesh, 1, ROCK, facet_tags=fm.facet_tags, crack_facets=crack_facet_indices(
+        fm.mesh, fm.facet_tags, cracks))
+    iface = Interface(solver, fm.facet_tags, cracks)
+    rng = np.random.default_rng(comm.rank)
+    pts = iface.points.reshape(-1, 2)
+    for k, (p0, p1) in enumerate(zip(path[:-1], path[1:])):
+        iface.state[0] = rng.uniform(size=iface.state[0].shape)
+        seg = p1 - p0
+        u = (pts - p0) @ seg / (seg @ seg)
+        d = np.linalg.norm(pts - (p0 + np.clip(u, 0, 1)[:, None] * seg), axis=1)
+        on = (u >= 0) & (u <= 1) & (d <= 1e-9)
+        D = iface.state[0].reshape(-1)[on]
+        tot = comm.allreduce(np.array([D.sum(), D.size]), op=MPI.SUM)
+        assert tot[1] > 0
+        assert segment_damages(iface, [(PATH, p0, p1)])[0] == pytest.approx(tot[0] / tot[1], rel=1e-14)
+        kept = iface.points_on_segment(PATH, p0, p1)
+        assert np.array_equal(kept, np.flatnonzero(on))
+        assert iface.points_on_segment(PATH, p0.copy(), p1.copy()) is kept  # found once

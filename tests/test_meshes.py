@@ -200,3 +200,50 @@ def test_mesh_from_arrays_is_gmshio():
 @pytest.mark.mpi
 def test_mesh_from_arrays_is_gmshio_mpi():
     check_mesh_from_arrays_is_gmshio()
+
+
+def test_a_growing_network_is_checked_against_its_old_lines():
+    """check_no_crossings skips only the pairs of lines that its last clean call checked,
+    unchanged: a new line, or an old line that grew, is checked against every other line."""
+    from hydrofrac.meshes import fractures as fr
+    compared = []
+    cross_segments = fr._cross_segments
+
+    def counting(a0, a1, b0, b1, tol=1e-9):
+        compared.append(a0.shape[0] * b0.shape[0])
+        return cross_segments(a0, a1, b0, b1, tol)
+
+    lines = {fr.PATH + k: np.array([[x, -1.0], [x, 0.0], [x, 1.0]]) for k, x in enumerate((-0.5, 0.0, 0.5))}
+    fr._CLEAN_LINES.clear()
+    try:
+        fr._cross_segments = counting
+        fr.check_no_crossings(lines)
+        first = sum(compared)
+        compared.clear()
+        # one line more, crossing none: only its pairs are compared
+        grown = {**lines, fr.PATH + 3: np.array([[0.7, -1.0], [0.9, 1.0]])}
+        fr.check_no_crossings(grown)
+        assert sum(compared) == 3 * 2 * 1 < first
+        # a new line across the old ones, and an old line grown across another, are caught
+        with pytest.raises(ValueError, match=r"path 0 \(tag \d+\) and path 4 \(tag \d+\) cross"):
+            fr.check_no_crossings({**grown, fr.PATH + 4: np.array([[-1.0, 0.5], [1.0, 0.5]])})
+        bent = dict(grown)
+        bent[fr.PATH + 1] = np.array([[0.0, -1.0], [0.0, 0.0], [0.0, 1.0], [0.6, 0.8]])
+        with pytest.raises(ValueError, match=r"path 1 \(tag \d+\) and path 2 \(tag \d+\) cross"):
+            fr.check_no_crossings(bent)
+    finally:
+        fr._cross_segments = cross_segments
+        fr._CLEAN_LINES.clear()
+
+
+def test_a_polyline_passed_in_one_domain_is_checked_again_in_another():
+    """check_polyline keeps the polylines it passed, with the domain and the wellbore flag they
+    passed in: the same points in a smaller box are refused."""
+    from hydrofrac.meshes import fractures as fr
+    pts = np.array([[0.0, 0.0], [0.97, 0.0]])
+    big = fr.Domain(half_width=2.0, half_height=2.0, wellbore_radius=0.0, h_crack=0.05, h_far=0.5, grading=0.5)
+    small = fr.Domain(half_width=1.0, half_height=1.0, wellbore_radius=0.0, h_crack=0.05, h_far=0.5, grading=0.5)
+    fr.check_polyline("path 0", pts, big)
+    assert (big, False, pts.shape, pts.tobytes()) in fr._VALID_POLYLINES
+    with pytest.raises(ValueError, match="lie outside the domain"):
+        fr.check_polyline("path 0", pts, small)
