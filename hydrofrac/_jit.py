@@ -31,11 +31,28 @@ def njit(fn=None, *, exact=False):
     return numba.njit(cache=True, error_model="numpy", fastmath=set() if exact else FASTMATH)(fn)
 
 
+class _LazyUfunc:
+    """A numba ufunc built at its first call: loading one from the cache takes ~50 ms, and a
+    run calls few of the ufuncs a module defines (hydrofrac.riemann has 14)."""
+
+    def __init__(self, point_fn, signatures):
+        self._args = (point_fn, list(signatures))
+        self._ufunc = None
+        self.__doc__ = point_fn.__doc__
+
+    def __call__(self, *args, **kwargs):
+        if self._ufunc is None:
+            point_fn, signatures = self._args
+            self._ufunc = numba.vectorize(signatures, cache=True)(point_fn.py_func)
+        return self._ufunc(*args, **kwargs)
+
+
 def vectorize(point_fn, signatures):
-    """A broadcasting ufunc made from a scalar point function (compiled with numba)."""
+    """A broadcasting ufunc made from a scalar point function (compiled with numba, when first
+    called)."""
     if not HAVE_NUMBA:
         return np.vectorize(point_fn, otypes=[float])
-    return numba.vectorize(list(signatures), cache=True)(point_fn.py_func)
+    return _LazyUfunc(point_fn, signatures)
 
 
 if HAVE_NUMBA:
