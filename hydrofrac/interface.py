@@ -449,11 +449,15 @@ class Interface:
                                          *self._separation(t), *self._laws)
         return rates
 
-    def _finish(self, out, cells):
-        """Reverse-scatter the dof-vector residual (contributions to ghost cells), apply the
-        inverse mass of ``cells`` to it, add to ``out``, and clear it."""
+    def _finish(self, out, cells, started=False):
+        """Reverse-scatter the dof-vector residual (contributions to ghost cells; ``started``:
+        :meth:`start_finish` began it), apply the inverse mass of ``cells`` to it, add to
+        ``out``, and clear it."""
         if self._ghost_flux:
-            self._r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            if started:
+                self._r.ghostUpdateEnd(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            else:
+                self._r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         with self._r.localForm() as rl:
             r = rl.array
             if cells.size:
@@ -471,11 +475,19 @@ class Interface:
         self.solver.timers.add("interface kernel", time.perf_counter() - t0)
         return rates
 
+    def start_finish(self):
+        """Matrix-free path: begin sending the contributions to ghost cells (after
+        :meth:`stage_cells`), so that the bulk's volume pass runs while they travel and
+        :meth:`finish_stage` only completes the exchange."""
+        if self._ghost_flux:
+            self._r.ghostUpdateBegin(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+
     def finish_stage(self, out):
-        """Matrix-free path: contributions that other ranks computed for owned cells."""
+        """Matrix-free path: contributions that other ranks computed for owned cells (the
+        exchange :meth:`start_finish` began)."""
         t0 = time.perf_counter()
         if self._ghost_flux:
-            self._finish(out, self._recv_cells)
+            self._finish(out, self._recv_cells, started=True)
         self.solver.timers.add("interface kernel", time.perf_counter() - t0)
 
     def rhs(self, y, t, out):

@@ -638,6 +638,8 @@ class Solver:
                 self.timers.add("bulk operator", time.perf_counter() - t0)
                 # crack interfaces add their owned cells' flux before the inverse mass
                 rates = [ext.stage_cells(X, t, mf.R) for ext in self.extensions]
+                for ext in self.extensions:  # their ghost cells' share travels during the volume pass
+                    ext.start_finish()
                 t0 = time.perf_counter()
                 mf.finish(X, out.array)
         else:
