@@ -319,9 +319,11 @@ def combine(D, eta, gamma, bonded_sol, slip_sol, sep_sol):
 
 def effective_stress(s_B, beta):
     """s_eff = sqrt(<s_B^1>^2 + (beta |s_B^2|)^2) (eq. 10); ``s_B`` (..., 2) in local
-    (normal, tangential) components."""
+    (normal, tangential) components.  NaN where ``s_B`` is NaN (a growth criterion's sample
+    point outside the mesh), without a warning."""
     s_B = np.asarray(s_B, dtype=float)
-    return _effective_stress_u(s_B[..., 0], s_B[..., 1], beta)
+    with np.errstate(invalid="ignore"):
+        return _effective_stress_u(s_B[..., 0], s_B[..., 1], beta)
 
 
 def separation_jump(sB_n, S_n, Zt_n):
