@@ -71,29 +71,35 @@ def fluid_volume(pressure, rate):
     return PiecewiseLinear([t[0], t[2], t[3], t[4], t[6]], [0.0, pumped, 0.0, 0.0, rate * (t[6] - t[4])])
 
 
-def geometry(quick=False):
-    """Domain, perforations, potential-path lengths and load history (``--quick``: smaller)."""
+def geometry(quick=False, h_crack=None, h_far=None):
+    """Domain, perforations, potential-path lengths and load history (``--quick``: smaller);
+    ``h_crack``, ``h_far`` [m]: the mesh sizes at the cracks and far from them (default 0.04 and
+    0.8, ``--quick`` 0.05 and 0.5; the growth's Δa and r are in facet sizes, so they scale too)."""
     if quick:
         # small cracks close quickly: a 2 ms version of the history
-        dom = Domain(half_width=1.2, half_height=1.2, wellbore_radius=0.1, h_crack=0.05, h_far=0.5, grading=0.8)
+        dom = Domain(half_width=1.2, half_height=1.2, wellbore_radius=0.1, h_crack=h_crack or 0.05,
+                     h_far=h_far or 0.5, grading=0.8)
         perfs = [Perforation(a, 0.15, width=1e-4) for a in ANGLES]
         return dom, perfs, [0.4] * 4, load_history(0.3e-3, 0.4e-3, 1.5e-3, 1.8e-3)
-    dom = Domain(half_width=4.0, half_height=4.0, wellbore_radius=0.1, h_crack=0.04, h_far=0.8, grading=1.5)
+    dom = Domain(half_width=4.0, half_height=4.0, wellbore_radius=0.1, h_crack=h_crack or 0.04, h_far=h_far or 0.8,
+                 grading=1.5)
     perfs = [Perforation(a, 0.3, width=1e-4) for a in ANGLES]
     return dom, perfs, [2.5] * 4, load_history()
 
 
 def description(quick=False, degree=2, tau=30e-6, growth=None, connected=False,
-                pump_rate=PUMP_RATE, adapt=None, adapt_tol=wellbore.ADAPT_TOL) -> wellbore.Wellbore:
+                pump_rate=PUMP_RATE, adapt=None, adapt_tol=wellbore.ADAPT_TOL, h_crack=None,
+                h_far=None) -> wellbore.Wellbore:
     """The problem as data: free growth (``growth``) or the pre-meshed paths, and the fluid of a
     pump at ``pump_rate`` [m²/s] (inf: an unlimited supply); ``adapt`` [m]: adaptive meshes with
-    that fine size (:func:`hydrofrac.wellbore.adaptive`)."""
-    dom, perfs, lengths, (pressure, _, _, _) = geometry(quick)
+    that fine size (:func:`hydrofrac.wellbore.adaptive`); ``h_crack``, ``h_far``: see
+    :func:`geometry`."""
+    dom, perfs, lengths, (pressure, _, _, _) = geometry(quick, h_crack, h_far)
     paths = wellbore.radial_paths(dom, perfs, lengths)
     desc = wellbore.Wellbore(dom, perfs, pressure, paths=() if growth else paths, regularized=True, degree=degree,
                              damage=DamageParams(tau=tau), growth=growth, connected=connected,
                              volume=fluid_volume(pressure, pump_rate))
-    return desc if adapt is None else wellbore.adaptive(desc, adapt, adapt_tol)
+    return desc if adapt is None else wellbore.adaptive(desc, adapt, adapt_tol, h_crack=h_crack, h_far=h_far)
 
 
 def setup(comm=MPI.COMM_WORLD, record=None, **params):
@@ -287,6 +293,10 @@ def main(argv=None):
                                      "docs/studies/scenarios.md")
     # the network evolves (docs/model.md §6): microcracks nucleate where the bulk reaches the strength
     cli.add_growth_arguments(parser, nucleation_cap=NUCLEATION_CAP)
+    parser.add_argument("--h-crack", type=float, default=None,
+                        help="mesh size at the cracks [m] (default 0.04, --quick 0.05; Δa and r scale with it)")
+    parser.add_argument("--h-far", type=float, default=None,
+                        help="mesh size far from the cracks [m] (default 0.8, --quick 0.5)")
     cli.add_adapt_arguments(parser)
     histories = [geometry(q)[3] for q in (False, True)]  # (pressure, t_off, t_on, t_end), full and --quick
     args = cli.parse(parser, argv, name="refracture", degree=(2, 1), t_end=tuple(h[3] for h in histories),
@@ -296,9 +306,13 @@ def main(argv=None):
     _, t_off, t_on, _ = histories[args.quick]
     if not args.pump_rate > 0:
         parser.error(f"--pump-rate must be > 0 m^2/s (inf: unlimited); got {args.pump_rate}")
+    for key in ("h_crack", "h_far"):
+        v = getattr(args, key)
+        if v is not None and not 0 < v < 1.0:
+            parser.error(f"--{key.replace('_', '-')} must be in (0, 1) m; got {v}")
     params = dict(quick=args.quick, degree=args.degree, tau=args.tau, growth=wellbore.Growth.from_args(args),
                   connected=args.pressure_factor == "connected", pump_rate=args.pump_rate, adapt=args.adapt,
-                  adapt_tol=args.adapt_tol)
+                  adapt_tol=args.adapt_tol, h_crack=args.h_crack, h_far=args.h_far)
     try:
         desc = description(**params)
     except ValueError as err:

@@ -139,6 +139,8 @@ def test_run_end_time_must_be_positive():
     ("refracture", ["--growth-max-radius", "-1"], "--growth-max-radius"),
     ("refracture", ["--pump-rate", "0"], "--pump-rate"),
     ("refracture", ["--pump-rate", "nan"], "--pump-rate"),
+    ("refracture", ["--h-crack", "-0.04"], "--h-crack"),
+    ("refracture", ["--h-far", "2"], "--h-far"),
     ("intersection", ["--adapt", "0.03", "--growth-remesh", "patch"], "--growth-remesh full"),
     ("intersection", ["--premeshed", "--adapt", "0"], "--adapt"),
     ("intersection", ["--premeshed", "--adapt", "0.03", "--adapt-tol", "-1"], "--adapt-tol"),
@@ -162,3 +164,16 @@ def test_growth_limit_inside_the_perforations_rejected(tmp_path, capsys):
         _scenario("refracture").main(["--quick", "--growth-max-radius", "0.2", "--out", str(tmp_path / "run")])
     assert info.value.code == 2 and "perforation tips" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
+
+
+def test_refracture_mesh_sizes_are_the_ones_asked_for():
+    """--h-crack and --h-far reach the re-fracture's domain, with adaptive meshes too (where
+    they are the coarse sizes); the growth's r scales with h_crack."""
+    rf = _scenario("refracture")
+    from hydrofrac import wellbore
+    desc = rf.description(quick=True, h_crack=0.06, h_far=0.4, growth=wellbore.Growth())
+    assert (desc.domain.h_crack, desc.domain.h_far) == (0.06, 0.4)
+    assert rf.description(quick=True).domain.h_crack == 0.05
+    adapted = rf.description(quick=True, adapt=0.02, h_crack=0.07, h_far=0.45)
+    assert (adapted.domain.h_crack, adapted.domain.h_far) == (0.07, 0.45)
+    assert wellbore.growth_driver(desc).params.r == pytest.approx(wellbore.Growth().r * 0.06)
