@@ -231,6 +231,23 @@ def check_adapt_arguments(parser, args):
         parser.error(f"--adapt-tol must be > 0; got {args.adapt_tol}")
 
 
+def add_mesh_size_arguments(parser, h_crack, h_far):
+    """``--h-crack`` and ``--h-far`` [m] (a wellbore scenario's mesh sizes; ``h_crack`` and
+    ``h_far``: their defaults as text for the help, e.g. "0.04, --quick 0.05")."""
+    parser.add_argument("--h-crack", type=float, default=None,
+                        help=f"mesh size at the cracks [m] (default {h_crack}; Δa and r scale with it)")
+    parser.add_argument("--h-far", type=float, default=None,
+                        help=f"mesh size far from the cracks [m] (default {h_far})")
+
+
+def check_mesh_size_arguments(parser, args):
+    """Reject a mesh size outside (0, 1) m before any meshing (exit 2, naming the option)."""
+    for key in ("h_crack", "h_far"):
+        v = getattr(args, key)
+        if v is not None and not 0 < v < 1.0:
+            parser.error(f"--{key.replace('_', '-')} must be in (0, 1) m; got {v}")
+
+
 def check_growth_arguments(parser, args):
     """Reject bad growth options before any meshing (argparse's error: exit 2, with the fix);
     a default given by size takes the run's size here."""

@@ -265,10 +265,7 @@ def main(argv=None, regularized=None):
                              "scale delta~ = tau~ s_bar / Z~, hence the pressure-factor aperture delta_bar' delta~ "
                              "(default 1 ms: 27 µm; the load front then crosses the fracture in a few hundred µs, "
                              "as in the paper's fig. 8-9)")
-    parser.add_argument("--h-crack", type=float, default=None,
-                        help="mesh size at the cracks [m] (default 0.03, --quick 0.06; Δa and r scale with it)")
-    parser.add_argument("--h-far", type=float, default=None,
-                        help="mesh size far from the cracks [m] (default 0.5, --quick 0.8)")
+    cli.add_mesh_size_arguments(parser, "0.03, --quick 0.06", "0.5, --quick 0.8")
     cli.add_adapt_arguments(parser)
     cli.add_pressure_factor_argument(parser)
     # the network evolves (docs/model.md §6): the natural fracture's ends are tips, and fast tips branch
@@ -289,10 +286,7 @@ def main(argv=None, regularized=None):
     name = name_of(args)
     reg = args.reg = name == "intersection_regularized"
     cli.check_growth_arguments(parser, args)
-    for key in ("h_crack", "h_far"):
-        v = getattr(args, key)
-        if v is not None and not 0 < v < 1.0:
-            parser.error(f"--{key.replace('_', '-')} must be in (0, 1) m; got {v}")
+    cli.check_mesh_size_arguments(parser, args)
     if not args.ramp > 0:
         parser.error(f"--ramp must be > 0 s; got {args.ramp}")
     cli.check_adapt_arguments(parser, args)

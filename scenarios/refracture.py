@@ -293,10 +293,7 @@ def main(argv=None):
                                      "docs/studies/scenarios.md")
     # the network evolves (docs/model.md §6): microcracks nucleate where the bulk reaches the strength
     cli.add_growth_arguments(parser, nucleation_cap=NUCLEATION_CAP)
-    parser.add_argument("--h-crack", type=float, default=None,
-                        help="mesh size at the cracks [m] (default 0.04, --quick 0.05; Δa and r scale with it)")
-    parser.add_argument("--h-far", type=float, default=None,
-                        help="mesh size far from the cracks [m] (default 0.8, --quick 0.5)")
+    cli.add_mesh_size_arguments(parser, "0.04, --quick 0.05", "0.8, --quick 0.5")
     cli.add_adapt_arguments(parser)
     histories = [geometry(q)[3] for q in (False, True)]  # (pressure, t_off, t_on, t_end), full and --quick
     args = cli.parse(parser, argv, name="refracture", degree=(2, 1), t_end=tuple(h[3] for h in histories),
@@ -306,10 +303,7 @@ def main(argv=None):
     _, t_off, t_on, _ = histories[args.quick]
     if not args.pump_rate > 0:
         parser.error(f"--pump-rate must be > 0 m^2/s (inf: unlimited); got {args.pump_rate}")
-    for key in ("h_crack", "h_far"):
-        v = getattr(args, key)
-        if v is not None and not 0 < v < 1.0:
-            parser.error(f"--{key.replace('_', '-')} must be in (0, 1) m; got {v}")
+    cli.check_mesh_size_arguments(parser, args)
     params = dict(quick=args.quick, degree=args.degree, tau=args.tau, growth=wellbore.Growth.from_args(args),
                   connected=args.pressure_factor == "connected", pump_rate=args.pump_rate, adapt=args.adapt,
                   adapt_tol=args.adapt_tol, h_crack=args.h_crack, h_far=args.h_far)
