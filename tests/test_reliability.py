@@ -63,7 +63,8 @@ def _kill_after_checkpoint(cmd, ckpt: Path, ranks=2, timeout=300):
     t0 = time.time()
     try:
         while time.time() - t0 < timeout:
-            if ckpt.exists() and len(list(ckpt.glob("state_r*.npz"))) >= ranks and proc.poll() is None:
+            current = [f for f in ckpt.glob("state_r*.npz") if ".prev" not in f.name] if ckpt.exists() else []
+            if len(current) >= ranks and proc.poll() is None:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
                 return
@@ -81,7 +82,9 @@ def _kill_after_checkpoint(cmd, ckpt: Path, ranks=2, timeout=300):
     ("two_cracks.py", "two_cracks", ["--t-end", "6e-4"]),
     ("crossing.py", "crossing", ["--friction", "0.3"]),   # an arrest, then a crossing after the restart
     ("branching.py", "branching", []),                    # a branch after the restart
-    ("refracture.py", "refracture", ["--growth", "--growth-nucleation-cap", "2", "--t-end", "2.5e-4"]),  # microcracks
+    # microcracks; to 5e-4 s (244 steps): to 2.5e-4 s the run sometimes reached its end between its
+    # first checkpoint and the kill (CI met it once, and 2 of 6 runs here); 8 of 8 passed since
+    ("refracture.py", "refracture", ["--growth", "--growth-nucleation-cap", "2", "--t-end", "5e-4"]),
     ("borehole.py", "borehole", ["--scheme", "ader", "--t-end", "1e-2"]),  # ADER: its predictor from the restored state
 ])
 def test_kill_and_restart_on_two_ranks_ends_as_a_straight_run(tmp_path, script, name, extra):
