@@ -79,15 +79,7 @@ def _ordered_partition(comm, nparts, graph, ghosting):
     owner[order] = (np.arange(n) * nparts // n).astype(np.int32)
     if not ghosting or nparts == 1:
         return AdjacencyList_int32(owner, np.arange(n + 1, dtype=np.int32))
-    # each cell's destinations: its owner first, then its neighbours' other owners in increasing order
-    other = owner[nbr]
-    ghost = other != owner[rows]
-    pairs = np.unique(rows[ghost].astype(np.int64) * nparts + other[ghost])
-    cell = np.r_[np.arange(n, dtype=np.int64), pairs // nparts]
-    rank = np.r_[owner, (pairs % nparts).astype(np.int32)]
-    order = np.argsort(cell, kind="stable")  # the owners (first n entries) stay ahead of their ghosts
-    lengths = np.bincount(cell, minlength=n)
-    return AdjacencyList_int32(rank[order].astype(np.int32), np.r_[0, np.cumsum(lengths)].astype(np.int32))
+    return _with_ghosts(owner, rows, owner[nbr], nparts)
 
 
 def gmsh_model_to_mesh(model, comm, rank=0, gdim=2):
@@ -112,16 +104,22 @@ def mesh_from_arrays(comm, nodes, cells, cell_tag, facets, facet_values, rank=0,
     pass empty arrays.  The same mesh and tags as :func:`gmsh_model_to_mesh` of a Gmsh model with
     these nodes (by tag), triangles and lines, without building or reading one (0.9:
     ``dolfinx.mesh.create_mesh`` takes the partitioner and the element; the tags the same way)."""
-    from dolfinx.io.gmshio import ufl_mesh
-    from dolfinx.cpp.graph import AdjacencyList_int32
     here = comm.rank == rank
     cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3) if here else np.zeros((0, 3), np.int64)
     x = np.ascontiguousarray(np.asarray(nodes, dtype=float)[:, :gdim]) if here else np.zeros((0, gdim))
     facets = np.asarray(facets, dtype=np.int64).reshape(-1, 2) if here else np.zeros((0, 2), np.int64)
     facet_values = np.asarray(facet_values, dtype=np.int32) if here else np.zeros(0, np.int32)
+    return _mesh_and_tags(comm, cells, x, cell_tag, facets, facet_values, _ordered_partition, gdim)
+
+
+def _mesh_and_tags(comm, cells, x, cell_tag, facets, facet_values, partition, gdim):
+    """DOLFINx's mesh of this rank's ``cells`` and nodes ``x``, distributed by ``partition``, with
+    every cell tagged ``cell_tag`` and the ``facets`` tagged ``facet_values``."""
+    from dolfinx.io.gmshio import ufl_mesh
+    from dolfinx.cpp.graph import AdjacencyList_int32
     domain = ufl_mesh(2, gdim)  # Gmsh's element type 2: the 3-node triangle (its node order is DOLFINx's)
     mesh = dolfinx.mesh.create_mesh(comm, cells, x, domain, ghost_mode=GHOST_MODE,
-                                    partitioner=dolfinx.mesh.create_cell_partitioner(_ordered_partition))
+                                    partitioner=dolfinx.mesh.create_cell_partitioner(partition))
     tdim = mesh.topology.dim
     # every cell has the one tag: each rank tags its cells, ghosts included (what distributing
     # the tag of every input cell gives, without the exchange)
@@ -134,6 +132,79 @@ def mesh_from_arrays(comm, nodes, cells, cell_tag, facets, facet_values, rank=0,
     ft = dolfinx.mesh.meshtags_from_entities(mesh, tdim - 1, AdjacencyList_int32(ent), val.astype(np.int32))
     ft.name = "Facet tags"
     return mesh, ct, ft
+
+
+def _keep_partition(comm, nparts, graph, ghosting):
+    """Every cell stays on the rank that passed it to ``create_mesh``; with ``ghosting`` it also
+    goes to the ranks of its facet neighbours.  The dual graph is distributed: its nodes are
+    numbered by rank, each rank's cells after the cells of the ranks before it."""
+    from dolfinx.cpp.graph import AdjacencyList_int32
+    n = graph.num_nodes
+    start = np.cumsum([0] + comm.allgather(n))
+    owner = np.full(n, comm.rank, np.int32)
+    if not ghosting or nparts == 1 or n == 0:
+        return AdjacencyList_int32(owner, np.arange(n + 1, dtype=np.int32))
+    offsets = np.asarray(graph.offsets)
+    nbr = np.asarray(graph.array, dtype=np.int64)
+    rows = np.repeat(np.arange(n), np.diff(offsets))
+    return _with_ghosts(owner, rows, (np.searchsorted(start, nbr, side="right") - 1).astype(np.int32), nparts)
+
+
+def _with_ghosts(owner, rows, other, nparts):
+    """Each cell's destinations: its ``owner`` first, then the other owners of its neighbours
+    (``other``: the owner of the neighbour of each edge ``rows`` -> neighbour) in increasing order."""
+    from dolfinx.cpp.graph import AdjacencyList_int32
+    n = owner.size
+    ghost = other != owner[rows]
+    pairs = np.unique(rows[ghost].astype(np.int64) * nparts + other[ghost])
+    cell = np.r_[np.arange(n, dtype=np.int64), pairs // nparts]
+    rank = np.r_[owner, (pairs % nparts).astype(np.int32)]
+    order = np.argsort(cell, kind="stable")  # the owners (first n entries) stay ahead of their ghosts
+    lengths = np.bincount(cell, minlength=n)
+    return AdjacencyList_int32(rank[order].astype(np.int32), np.r_[0, np.cumsum(lengths)].astype(np.int32))
+
+
+def mesh_from_local_arrays(comm, x, cells, cell_tag, facets, facet_values, gdim=2):
+    """A triangle mesh whose parts every rank holds -> (mesh, cell_tags, facet_tags): ``x``
+    (n, >= gdim) this rank's block of nodes (the global index of row i is i plus the rows of the
+    ranks before), ``cells`` (m, 3) global node indices of the cells this rank will own (no
+    cell moves: :func:`_keep_partition`), ``facets`` (k, 2) global node pairs tagged
+    ``facet_values`` (k,), on any rank (0.9: ``create_mesh`` takes the partitioner and the
+    element)."""
+    x = np.asarray(x, dtype=float)
+    x = np.ascontiguousarray(x.reshape(-1, x.shape[-1] if x.size else gdim)[:, :gdim])
+    return _mesh_and_tags(comm, np.asarray(cells, dtype=np.int64).reshape(-1, 3), x, cell_tag,
+                          np.asarray(facets, np.int64).reshape(-1, 2), np.asarray(facet_values, np.int32),
+                          _keep_partition, gdim)
+
+
+def mesh_inputs(mesh, facet_tags):
+    """This rank's part of a triangle mesh as the inputs of :func:`mesh_from_local_arrays`, in
+    the geometry's global node numbering: (x (n, 2) the owned nodes, cells (c, 3) and their
+    coordinates (c, 3, 2) for the owned cells, facets (k, 2) and their coordinates (k, 2, 2) and
+    values (k,) for the owned tagged facets).  The mesh made again from them has the same
+    cells, nodes and tags on the same ranks (0.9: ``geometry.dofmap`` is a 2D array,
+    ``geometry.index_map()`` unchanged)."""
+    geo = mesh.geometry
+    imap = geo.index_map()
+    g_of = np.asarray(imap.local_to_global(np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)), np.int64)
+    tdim = mesh.topology.dim
+    nc = mesh.topology.index_map(tdim).size_local
+    dof = geo.dofmap.array.reshape(-1, 3)
+    x = geo.x[:imap.size_local, :2].copy()
+    # vertex -> geometry node (a P1 cell's i-th vertex is its i-th geometry node)
+    mesh.topology.create_connectivity(tdim, 0)
+    c2v = mesh.topology.connectivity(tdim, 0).array.reshape(-1, 3)
+    vmap = mesh.topology.index_map(0)
+    v2g = np.empty(vmap.size_local + vmap.num_ghosts, np.int64)
+    v2g[c2v.reshape(-1)] = dof[:c2v.shape[0]].reshape(-1)
+    mesh.topology.create_connectivity(tdim - 1, 0)
+    f2v = mesh.topology.connectivity(tdim - 1, 0).array.reshape(-1, 2)
+    idx = np.asarray(facet_tags.indices)
+    own = idx < mesh.topology.index_map(tdim - 1).size_local
+    fg = v2g[f2v[idx[own]]]
+    return (x, g_of[dof[:nc]], geo.x[dof[:nc], :2].copy(), g_of[fg], geo.x[fg, :2].copy(),
+            np.asarray(facet_tags.values)[own].astype(np.int32))
 
 
 def gmsh_compiled_size_callback(gmsh, address, data):

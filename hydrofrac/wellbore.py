@@ -261,30 +261,24 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
         return problem
 
     def mesh_state():
-        """What a restart needs to make the same mesh again: the mesh arrays (rank 0) and the
-        counts; None unless the remesh is local."""
+        """What a restart needs to make the same mesh again: the arrays it was made from (a
+        local remesh's on every rank, a full mesh's on rank 0) and the counts; None unless the
+        remesh is local."""
         if g.remesh != "patch":
             return None
+        from .meshes.patch import arrays_state
         a = getattr(last.get("fm"), "arrays", None)
         if "listed" not in last or last["listed"][0] is not a:  # (asked at every checkpoint: once per mesh)
-            last["listed"] = (a, None if a is None else {
-                "nodes": a.nodes.tolist(), "tris": a.tris.tolist(),
-                "lines": {str(k): v.tolist() for k, v in a.lines.items()},
-                "polylines": {str(k): v.tolist() for k, v in a.polylines.items()}})
+            last["listed"] = (a, arrays_state(a))
         return {"arrays": last["listed"][1], "kinds": dict(rebuild.kinds), "fallbacks": dict(rebuild.fallbacks)}
 
     def restore_mesh(state):
         """Before a restart's build: the checkpoint's mesh is the previous one, with no new
-        segment, so the build makes it again exactly (:func:`hydrofrac.meshes.patch.patch_arrays`)."""
+        segment, so the build makes it again from the same arrays (meshes/fractures.py)."""
         from types import SimpleNamespace
 
-        from .meshes.patch import MeshArrays
-        a = state["arrays"]
-        arrays = None if a is None else MeshArrays(
-            np.asarray(a["nodes"], float), np.asarray(a["tris"], np.int64),
-            {int(k): np.asarray(v, np.int64).reshape(-1, 2) for k, v in a["lines"].items()},
-            {int(k): np.asarray(v, float) for k, v in a["polylines"].items()})
-        last["fm"] = SimpleNamespace(arrays=arrays)
+        from .meshes.patch import arrays_from_state
+        last["fm"] = SimpleNamespace(arrays=arrays_from_state(state["arrays"]), mesh=None)
         rebuild.kinds.update(state["kinds"])
         rebuild.fallbacks.update(state["fallbacks"])
 

@@ -23,10 +23,11 @@ Tags (module constants): cells ``ROCK`` = 1; facets ``WELLBORE`` = 1,
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
+from mpi4py import MPI
 
 from .gmsh_util import gmsh_session, mesh_arrays
 
@@ -103,13 +104,17 @@ class FractureMesh:
     naturals: List[int] = field(default_factory=list)
     paths: List[int] = field(default_factory=list)
     lines: dict = field(default_factory=dict)  # tag -> (points (k, 2))
-    #: the mesh as arrays on rank 0 (None elsewhere), for a later local remesh
+    #: the arrays the mesh was made from (meshes/patch.py): a full mesh's on rank 0 (None
+    #: elsewhere), a local remesh's on every rank (each its own part); a restart makes the mesh
+    #: again from them
     arrays: object = None
     #: how it was made: "full" (Gmsh over the whole domain) or "patch" (meshes/patch.py), the
     #: patch's old triangles, and why a local remesh that was asked for fell back to "full"
     remesh: str = "full"
     patch_cells: int = 0
     fallback: Optional[str] = None
+    #: a local remesh: the old cells rank 0 received to make the patch (the region around it)
+    region_cells: int = 0
 
 
 def perforation_points(domain: Domain, perf: Perforation):
@@ -418,34 +423,45 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
         from . import patch
         if patch_radius is None or not patch_radius > 0:
             raise ValueError(f"a local remesh needs patch_radius > 0; got {patch_radius}")
-        merged, n_patch, why, shrinks = None, 0, None, False
-        if comm.rank == 0:
-            law = patch.SizeLaw(domain.h_crack, domain.h_far, domain.grading, domain.wellbore_radius,
-                                domain.h_tip, domain.tip_radius)
-            with gmsh_session(comm) as gmsh:
+        if getattr(previous, "mesh", None) is None:
+            # a restart: the checkpoint's mesh, made again from the arrays it was made from
+            a = previous.arrays
+            local = comm.allreduce(isinstance(a, patch.LocalArrays), op=MPI.LOR)
+            old_lines = a.polylines if local else comm.bcast(None if a is None else a.polylines, root=0)
+            mesh, ct, ft = patch.build(comm, a, ROCK)
+            previous = FractureMesh(mesh, ct, ft, lines=old_lines, arrays=a, remesh="patch" if local else "full")
+        added, removed = patch.new_segments(previous.lines, lines)
+        if not added and not removed:  # the same geometry: the same mesh, from the same arrays
+            mesh, ct, ft = patch.build(comm, previous.arrays, ROCK)
+            arrays = None if previous.arrays is None else replace(previous.arrays, polylines=dict(lines))
+            return FractureMesh(mesh, ct, ft, **tags, arrays=arrays, remesh="patch", patch_cells=0)
+        law = patch.SizeLaw(domain.h_crack, domain.h_far, domain.grading, domain.wellbore_radius,
+                            domain.h_tip, domain.tip_radius)
+        with gmsh_session(comm) as gmsh:
+            if comm.rank == 0:
                 gmsh.option.setNumber("General.Terminal", 0)
-                merged, n_patch, why = patch.patch_arrays(gmsh, previous.arrays, lines, patch_radius, law, tips,
-                                                          crack_tags=set(lines))
-            if why is None:
-                shrinks = (patch.smallest_inradius(merged.nodes, merged.tris) < (1 - patch.CELL_FLOOR_TOLERANCE)
-                           * patch.smallest_inradius(previous.arrays.nodes, previous.arrays.tris))
-        n_patch, why, shrinks = comm.bcast((n_patch, why, shrinks), root=0)
+            local, n_patch, why, stats = patch.patch_local(
+                comm, gmsh if comm.rank == 0 else None, previous.mesh, previous.facet_tags, previous.lines, lines,
+                patch_radius, law, tips, crack_tags=set(lines),
+                scale=2 * max(domain.half_width, domain.half_height))
+        shrinks = why is None and stats["inradius"] < (1 - patch.CELL_FLOOR_TOLERANCE) * stats["old_inradius"]
         full = None
-        if why is None and shrinks:
+        if shrinks:
             # is the smaller cell the new geometry's (a kink, a short segment) or the patch's?
             full = mesh_arrays(comm, build, lambda gmsh: capture(gmsh, lines), name="fractures", out=out,
                                verbose=verbose)
             better = None
             if comm.rank == 0:
                 better = (patch.smallest_inradius(full.nodes, full.tris) > (1 + patch.CELL_FLOOR_TOLERANCE)
-                          * patch.smallest_inradius(merged.nodes, merged.tris))
+                          * stats["inradius"])
             if comm.bcast(better, root=0):
                 why = "the patch made a smaller cell than a full remesh does (a shorter time step)"
         if why is None:
-            mesh, ct, ft = distribute(comm, merged, ROCK)
-            return FractureMesh(mesh, ct, ft, **tags, arrays=merged, remesh="patch", patch_cells=n_patch)
+            mesh, ct, ft = patch.build(comm, local, ROCK)
+            return FractureMesh(mesh, ct, ft, **tags, arrays=local, remesh="patch", patch_cells=n_patch,
+                                region_cells=stats["region_cells"])
         fallback = why
-        if why is not None and shrinks:  # (the full mesh is made already; its arrays live on rank 0)
+        if shrinks:  # (the full mesh is made already; its arrays live on rank 0)
             mesh, ct, ft = distribute(comm, full, ROCK)
             return FractureMesh(mesh, ct, ft, **tags, arrays=full, fallback=fallback)
     arrays = mesh_arrays(comm, build, lambda gmsh: capture(gmsh, lines), name="fractures", out=out, verbose=verbose)

@@ -2,17 +2,18 @@
 tips, and a fresh Gmsh mesh of the patch with its boundary fixed (docs/benchmarks.md,
 "Remeshing: local patches").
 
-Rank 0 keeps the arrays of the last mesh it made (:class:`MeshArrays`: nodes, triangles and
-the tagged facet lines).  For a new crack network, :func:`patch_arrays` takes the triangles
-whose centroid lies within ``radius`` of an end of a new crack segment, keeps the boundary of
-their union as it is (its nodes and edges are not moved, so the triangles outside are the old
-ones, node for node), meshes the union again with the new segments embedded and the same size
-law as the full mesh (:class:`SizeLaw`), and returns the merged arrays.  Where a patch cannot
-be made, it says why and the caller meshes the whole domain: a patch boundary that touches
-itself at a vertex, a new segment outside the patch, or Gmsh failing on the patch.
-
-Everything here runs on rank 0 but :func:`distribute`, which hands the merged arrays to
-:func:`hydrofrac.compat.mesh_from_arrays` (the same path as a full Gmsh mesh's arrays).
+A full mesh is Gmsh's, as arrays on rank 0 (:class:`MeshArrays`, :func:`capture`,
+:func:`distribute`).  A local remesh (:func:`patch_local`) works on the distributed mesh:
+each rank sends rank 0 only its cells near the new crack segments (the region), rank 0 takes
+the triangles whose centroid lies within ``radius`` of an end of a new segment (and the
+too-coarse ones next to them), keeps the boundary of their union as it is (its nodes and
+edges are not moved, so the triangles outside are the old ones, node for node), meshes the
+union again with the new segments embedded and the same size law as the full mesh
+(:class:`SizeLaw`, :func:`_patch`), and each rank then drops its cells in the patch and takes
+the new ones nearest to them (:class:`LocalArrays`: no rank holds the whole mesh).  Where a
+patch cannot be made, it says why and the caller meshes the whole domain: a patch boundary
+that touches itself at a vertex, a new segment outside the patch, or Gmsh failing on the
+patch.
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
+from mpi4py import MPI
 
 from hydrofrac import compat
 
@@ -181,6 +183,70 @@ def capture(gmsh, polylines) -> MeshArrays:
                       {int(k): np.asarray(v, dtype=float) for k, v in polylines.items()})
 
 
+@dataclass
+class LocalArrays:
+    """This rank's part of a mesh as the inputs it is made from
+    (:func:`hydrofrac.compat.mesh_from_local_arrays`, every cell staying on the rank that holds
+    it): ``x`` (n, 2) this rank's block of nodes (global index: the row plus the rows of the
+    ranks before), ``cells`` (c, 3) global node indices of the cells it owns, ``facets`` (k, 2)
+    global node pairs tagged ``values`` (k,), and the crack polylines (the same on every rank).
+    A local remesh makes the next one from the mesh (:func:`patch_local`); no rank holds the
+    whole mesh."""
+
+    x: np.ndarray
+    cells: np.ndarray
+    facets: np.ndarray
+    values: np.ndarray
+    polylines: Dict[int, np.ndarray] = field(default_factory=dict)
+
+
+def build(comm, arrays, cell_tag: int):
+    """(mesh, cell_tags, facet_tags) of the arrays a mesh was made from: :class:`LocalArrays`
+    on every rank, or :class:`MeshArrays` on rank 0 (None elsewhere, :func:`distribute`)."""
+    if isinstance(arrays, LocalArrays):
+        return compat.mesh_from_local_arrays(comm, arrays.x, arrays.cells, cell_tag, arrays.facets, arrays.values)
+    return distribute(comm, arrays, cell_tag)
+
+
+def gathered(comm, arrays) -> Optional[MeshArrays]:
+    """The whole mesh as :class:`MeshArrays` on rank 0 (None elsewhere), from either kind of
+    arrays: for checks and tests only (a run never gathers a :class:`LocalArrays` mesh)."""
+    if not isinstance(arrays, LocalArrays):
+        return arrays
+    parts = comm.gather((arrays.x, arrays.cells, arrays.facets, arrays.values), root=0)
+    if comm.rank != 0:
+        return None
+    values = np.concatenate([p[3] for p in parts])
+    facets = np.concatenate([p[2] for p in parts]).reshape(-1, 2)
+    lines = {int(t): np.unique(np.sort(facets[values == t], axis=1), axis=0) for t in np.unique(values)}
+    return MeshArrays(np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]), lines,
+                      dict(arrays.polylines))
+
+
+def arrays_state(arrays):
+    """JSON-able state of this rank's arrays (a checkpoint's, :func:`arrays_from_state`)."""
+    if arrays is None:
+        return None
+    poly = {str(k): np.asarray(v).tolist() for k, v in arrays.polylines.items()}
+    if isinstance(arrays, LocalArrays):
+        return {"layout": "local", "x": arrays.x.tolist(), "cells": arrays.cells.tolist(),
+                "facets": arrays.facets.tolist(), "values": arrays.values.tolist(), "polylines": poly}
+    return {"layout": "root", "nodes": arrays.nodes.tolist(), "tris": arrays.tris.tolist(),
+            "lines": {str(k): v.tolist() for k, v in arrays.lines.items()}, "polylines": poly}
+
+
+def arrays_from_state(a):
+    """The arrays of :func:`arrays_state`."""
+    if a is None:
+        return None
+    poly = {int(k): np.asarray(v, float) for k, v in a["polylines"].items()}
+    if a.get("layout") == "local":
+        return LocalArrays(np.asarray(a["x"], float).reshape(-1, 2), np.asarray(a["cells"], np.int64).reshape(-1, 3),
+                           np.asarray(a["facets"], np.int64).reshape(-1, 2), np.asarray(a["values"], np.int32), poly)
+    return MeshArrays(np.asarray(a["nodes"], float), np.asarray(a["tris"], np.int64),
+                      {int(k): np.asarray(v, np.int64).reshape(-1, 2) for k, v in a["lines"].items()}, poly)
+
+
 def distribute(comm, arrays: MeshArrays, cell_tag: int):
     """(mesh, cell_tags, facet_tags) of ``arrays`` (held on rank 0, None elsewhere), distributed
     over ``comm``: every triangle tagged ``cell_tag``, each line's edges their tag."""
@@ -336,17 +402,15 @@ def smallest_inradius(nodes, tris):
     return float(inradius(nodes[tris]).min()) if len(tris) else math.inf
 
 
-def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius: float, size: SizeLaw,
-                 tips=(), crack_tags=None):
-    """(merged arrays, number of patch triangles, None) or (None, 0, why not).  ``polylines``:
-    the new crack lines (tag -> points); ``crack_tags``: the facet tags that are cracks (the
-    other line tags, the domain boundary, are never inside a patch)."""
-    polylines = {int(k): np.asarray(v, dtype=float) for k, v in polylines.items()}
-    added, removed = new_segments(old.polylines, polylines)
-    if removed:
-        return None, 0, "a crack segment of the old mesh is gone"
-    if not added:
-        return MeshArrays(old.nodes, old.tris, dict(old.lines), polylines), 0, None
+def _patch(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], added, radius: float, size: SizeLaw,
+           tips=(), crack_tags=None, scale=None):
+    """The patch of ``old`` (a whole mesh, or the part of one around the new segments
+    ``added``): (near, nodes, new_t, lines, None) or (None, ..., why not).  ``near``: the old
+    triangles replaced; ``nodes``: the old nodes, then the patch's new ones; ``new_t``: the
+    patch's triangles in those; ``lines``: tag -> edges of every tagged line after the patch
+    (the old ones but the crack edges inside the patch, then the patch's).  ``scale``: the
+    domain's size (nodes closer than 1e-12 of it are one)."""
+    none = (None, None, None, None)
     ends = np.array([p for _, a, b in added for p in (a, b)])
     cent = old.nodes[old.tris].mean(axis=1)
     from scipy.sparse import coo_matrix
@@ -380,7 +444,7 @@ def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius
     # the new segments must lie in the patch (ends and midpoints)
     probe = np.concatenate([ends, np.array([0.5 * (a + b) for _, a, b in added])])
     if not np.all(_inside(probe, old.nodes, ptris)):
-        return None, 0, "a new crack segment leaves the patch"
+        return (*none, "a new crack segment leaves the patch")
     for _ in range(4):  # the triangles at a vertex where the boundary touches itself, and islands
         # of old triangles inside the patch, join it (a patch with no pinch and no hole)
         pe = np.concatenate([ptris[:, [0, 1]], ptris[:, [1, 2]], ptris[:, [2, 0]]])
@@ -408,7 +472,7 @@ def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius
     uk, first, counts = np.unique(_edge_key(pe), return_index=True, return_counts=True)
     loops = _loops(pe[first[counts == 1]])
     if loops is None:
-        return None, 0, "the patch boundary touches itself at a vertex"
+        return (*none, "the patch boundary touches itself at a vertex")
     # each connected piece of the patch is one surface: its outer loop and its holes
     # (the pieces again: an island filled in joins the piece around it)
     sel = np.flatnonzero(near)
@@ -455,7 +519,7 @@ def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius
     pieces_of_cracks = _straight_pieces(inner_cracks, old.nodes)
     if pieces_of_cracks is None:
         model.remove()
-        return None, 0, "a crack inside the patch is not a chain of edges"
+        return (*none, "a crack inside the patch is not a chain of edges")
     lines = ([(1, occ.addLine(pt(p), pt(q))) for _, (p, q) in pieces_of_cracks]
              + [(1, occ.addLine(occ.addPoint(*a, 0.0), occ.addPoint(*b, 0.0))) for _, a, b in added])
     owner = [tag for tag, _ in pieces_of_cracks] + [tag for tag, _, _ in added]
@@ -487,24 +551,24 @@ def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius
         model.mesh.generate(2)
         patch = capture(gmsh, {})
     except Exception as err:  # noqa: BLE001 - the caller meshes the whole domain instead
-        return None, 0, f"Gmsh failed on the patch: {err}"
+        return (*none, f"Gmsh failed on the patch: {err}")
     finally:
         if hasattr(model.mesh, "removeSizeCallback"):
             model.mesh.removeSizeCallback()
         model.remove()
     lost = sorted(set(owner) - {t for t, e in patch.lines.items() if len(e)})
     if lost:
-        return None, 0, f"crack(s) {lost} have no facet in the patch mesh"
+        return (*none, f"crack(s) {lost} have no facet in the patch mesh")
     # every crack facet of the patch must be an edge of its triangles (embedded in the surface)
     pk = _edge_key(np.concatenate([patch.tris[:, [0, 1]], patch.tris[:, [1, 2]], patch.tris[:, [2, 0]]]))
     if any(not np.isin(_edge_key(e), pk).all() for e in patch.lines.values()):
-        return None, 0, "a crack is not embedded in the patch mesh"
+        return (*none, "a crack is not embedded in the patch mesh")
 
     # merge: the old nodes keep their indices; patch nodes at an old node's place are that node
     pnodes = np.unique(ptris)
     tree = cKDTree(old.nodes[pnodes])
     d, j = tree.query(patch.nodes)
-    scale = float(np.ptp(old.nodes, axis=0).max())
+    scale = float(np.ptp(old.nodes, axis=0).max()) if scale is None else scale
     same = d <= 1e-12 * scale
     fresh = np.flatnonzero(~same)
     index = np.empty(patch.nodes.shape[0], dtype=np.int64)
@@ -516,15 +580,141 @@ def patch_arrays(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], radius
     ne = np.concatenate([new_t[:, [0, 1]], new_t[:, [1, 2]], new_t[:, [2, 0]]])
     nk, nc = np.unique(_edge_key(ne), return_counts=True)
     if not np.array_equal(np.sort(nk[nc == 1]), np.sort(uk[counts == 1])):
-        return None, 0, "the patch mesh does not meet the kept mesh edge for edge"
-    tris = np.concatenate([old.tris[~near], new_t])
+        return (*none, "the patch mesh does not meet the kept mesh edge for edge")
     for tag, edges in patch.lines.items():
         kept_lines[tag] = np.concatenate([kept_lines.get(tag, np.zeros((0, 2), np.int64)), index[edges]])
-    # drop the old nodes no triangle uses any more
-    used = np.zeros(nodes.shape[0], dtype=bool)
-    used[tris.reshape(-1)] = True
-    renum = np.cumsum(used) - 1
     # (an edge on the patch boundary may come both from the kept lines and from the patch)
-    lines = {t: np.unique(np.sort(renum[e], axis=1), axis=0) for t, e in kept_lines.items() if len(e)}
-    merged = MeshArrays(nodes[used], renum[tris], lines, polylines)
-    return merged, int(near.sum()), None
+    lines = {t: np.unique(np.sort(e, axis=1), axis=0) for t, e in kept_lines.items() if len(e)}
+    return near, nodes, new_t, lines, None
+
+
+def _inradii(xy):
+    from hydrofrac.element import inradius
+    return inradius(xy) if len(xy) else np.zeros(0)
+
+
+def patch_local(comm, gmsh, mesh, facet_tags, old_polylines, polylines, radius: float, size: SizeLaw, tips=(),
+                crack_tags=None, scale=None):
+    """A local remesh of the distributed ``mesh`` (made for ``old_polylines``) for the new crack
+    lines ``polylines``, on every rank: (:class:`LocalArrays`, patch triangles, why not, stats).
+
+    Each rank sends rank 0 only its cells within ``max(radius, grading)`` plus three cell
+    sizes of a new segment's end, and the tagged facets there (the region).  Rank 0 meshes the
+    patch of that region (:func:`_patch`, with Gmsh; ``gmsh`` is None on the other ranks) and
+    sends each rank the old cells it drops and the patch cells it takes (those nearest to its
+    dropped cells).  Every rank keeps its other cells, nodes and facets as they are; the new
+    nodes join the last rank's block.  ``stats``: the cells rank 0 received, and the smallest
+    inradius of the new and of the old mesh (for the time-step check)."""
+    from scipy.spatial import cKDTree
+    polylines = {int(k): np.asarray(v, dtype=float) for k, v in polylines.items()}
+    added, removed = new_segments(old_polylines, polylines)
+    if removed:
+        return None, 0, "a crack segment of the old mesh is gone", {}
+    x, cells, cxy, facets, fxy, values = compat.mesh_inputs(mesh, facet_tags)
+    r_old = _inradii(cxy)
+    old_min = comm.allreduce(float(r_old.min()) if r_old.size else math.inf, op=MPI.MIN)
+    if not added:
+        return LocalArrays(x, cells, facets, values, polylines), 0, None, {
+            "region_cells": 0, "inradius": old_min, "old_inradius": old_min}
+    ends = np.array([p for _, a, b in added for p in (a, b)])
+    edges = cxy - np.roll(cxy, 1, axis=1)
+    hmax = comm.allreduce(float(np.sqrt((edges ** 2).sum(axis=2)).max()) if edges.size else 0.0, op=MPI.MAX)
+    reach = max(radius, size.grading) + 3.0 * hmax
+    tree = cKDTree(ends)
+    sel = np.flatnonzero(tree.query(cxy.mean(axis=1))[0] < reach) if len(cxy) else np.zeros(0, np.int64)
+    fsel = np.flatnonzero(tree.query(fxy.mean(axis=1))[0] < reach + hmax) if len(fxy) else np.zeros(0, np.int64)
+    n_nodes = comm.allreduce(x.shape[0])
+    parts = comm.gather((cells[sel], cxy[sel], sel, facets[fsel], values[fsel]), root=0)
+    plan = None
+    if comm.rank == 0:
+        plan = _plan_patch(gmsh, parts, comm.size, n_nodes, old_polylines, polylines, added, radius, size, tips,
+                           crack_tags, scale)
+    why, region, drop, patch_min, n_patch, unused = comm.bcast(None if plan is None else plan["common"], root=0)
+    if why is not None:
+        return None, 0, why, {"region_cells": region}
+    mine = comm.scatter(None if plan is None else plan["per_rank"], root=0)
+    dropped_cells, new_cells, fresh = mine
+    keep = np.ones(len(cells), dtype=bool)
+    keep[dropped_cells] = False
+    kept_min = float(r_old[keep].min()) if keep.any() else math.inf
+    new_min = min(comm.allreduce(kept_min, op=MPI.MIN), patch_min)
+    fkeep = np.ones(len(values), dtype=bool)
+    if drop:
+        fk = np.sort(facets, axis=1)
+        dropset = set(map(tuple, drop))
+        fkeep = np.array([(int(v), int(a), int(b)) not in dropset for v, (a, b) in zip(values, fk)], dtype=bool)
+    add_f, add_v = plan["add"] if plan is not None else (np.zeros((0, 2), np.int64), np.zeros(0, np.int32))
+    # the nodes no cell uses leave this rank's block, and every global index after them moves down
+    start = comm.exscan(x.shape[0])
+    start = start if comm.rank else 0  # (exscan leaves rank 0's undefined)
+    rows = np.ones(x.shape[0], dtype=bool)
+    rows[unused[(unused >= start) & (unused < start + x.shape[0])] - start] = False
+
+    def renumber(g):
+        return g - np.searchsorted(unused, g)
+    local = LocalArrays(np.concatenate([x[rows], fresh]), renumber(np.concatenate([cells[keep], new_cells])),
+                        renumber(np.concatenate([facets[fkeep], add_f])), np.concatenate([values[fkeep], add_v]),
+                        polylines)
+    return local, n_patch, None, {"region_cells": region, "inradius": new_min, "old_inradius": old_min}
+
+
+def _plan_patch(gmsh, parts, nranks, n_nodes, old_polylines, polylines, added, radius, size, tips, crack_tags, scale):
+    """Rank 0's part of :func:`patch_local`: the region's cells from every rank as one
+    :class:`MeshArrays` (nodes by global index), its patch, and what each rank changes."""
+    from scipy.spatial import cKDTree
+    gc = np.concatenate([p[0] for p in parts]).reshape(-1, 3)
+    gxy = np.concatenate([p[1] for p in parts]).reshape(-1, 3, 2)
+    origin = np.concatenate([np.full(len(p[0]), r, np.int64) for r, p in enumerate(parts)])
+    index = np.concatenate([p[2] for p in parts]).astype(np.int64)
+    gf = np.concatenate([p[3] for p in parts]).reshape(-1, 2)
+    gv = np.concatenate([p[4] for p in parts]).astype(np.int32)
+    uniq, first, inv = np.unique(gc.reshape(-1), return_index=True, return_inverse=True)
+    nodes = gxy.reshape(-1, 2)[first]
+    # the region in an order of its geometry alone (nodes by coordinates, triangles and edges by
+    # their nodes), not of the partition: any number of ranks makes the same patch
+    by_xy = np.lexsort((nodes[:, 1], nodes[:, 0]))
+    rank_of = np.empty_like(by_xy)
+    rank_of[by_xy] = np.arange(by_xy.size)
+    uniq, nodes = uniq[by_xy], nodes[by_xy]
+    tris = rank_of[inv.reshape(-1, 3)].astype(np.int64)
+    t_order = np.lexsort(np.sort(tris, axis=1).T[::-1])
+    tris, origin, index = tris[t_order], origin[t_order], index[t_order]
+    g_order = np.argsort(uniq)
+    pos = g_order[np.clip(np.searchsorted(uniq[g_order], gf), 0, max(len(uniq) - 1, 0))]
+    inside = (uniq[pos] == gf).all(axis=1) if len(uniq) else np.zeros(len(gf), bool)
+    lines = {}
+    for t in np.unique(gv[inside]):
+        e = np.sort(pos[inside & (gv == t)], axis=1)
+        lines[int(t)] = e[np.lexsort(e.T[::-1])]
+    region = MeshArrays(nodes, tris, lines, old_polylines)
+    near, all_nodes, new_t, new_lines, why = _patch(gmsh, region, polylines, added, radius, size, tips, crack_tags,
+                                                   scale)
+    if why is not None:
+        return {"common": (why, len(tris), None, None, 0, None)}
+    n_sub = len(uniq)
+    gid = np.concatenate([uniq, n_nodes + np.arange(all_nodes.shape[0] - n_sub)])
+    new_cells = gid[new_t]
+    fresh = all_nodes[n_sub:]
+    # each patch cell goes to the rank of the dropped cell nearest to it
+    gone = np.flatnonzero(near)
+    dest = origin[gone][cKDTree(nodes[tris[gone]].mean(axis=1)).query(all_nodes[new_t].mean(axis=1))[1]]
+    per_rank = []
+    for r in range(nranks):
+        per_rank.append((index[gone[origin[gone] == r]], new_cells[dest == r],
+                         fresh if r == nranks - 1 else np.zeros((0, 2))))
+
+    def keyed(lns, ids):
+        return {(int(t), int(min(a, b)), int(max(a, b))) for t, e in lns.items() for a, b in ids[e]}
+    before, after = keyed(lines, uniq), keyed(new_lines, gid)
+    drop = sorted(before - after)
+    add = sorted(after - before)
+    add_f = np.array([[a, b] for _, a, b in add], dtype=np.int64).reshape(-1, 2)
+    add_v = np.array([t for t, _, _ in add], dtype=np.int32)
+    patch_min = float(_inradii(all_nodes[new_t]).min()) if len(new_t) else math.inf
+    # the old nodes inside the patch that no cell uses any more (every cell at such a node is in
+    # the region): DOLFINx wants the global node indices without gaps
+    used = np.zeros(all_nodes.shape[0], dtype=bool)
+    used[tris[~near].reshape(-1)] = used[new_t.reshape(-1)] = True
+    unused = np.setdiff1d(np.unique(tris[near]), np.flatnonzero(used))
+    return {"common": (None, len(tris), drop, patch_min, int(near.sum()), np.sort(uniq[unused])), "per_rank": per_rank,
+            "add": (add_f, add_v)}

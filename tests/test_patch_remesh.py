@@ -20,7 +20,7 @@ from hydrofrac import ROCK, compat
 from hydrofrac.boundary import Absorbing
 from hydrofrac.interface import Crack, Interface, crack_facet_indices
 from hydrofrac.meshes.fractures import NATURAL, OUTER, PATH, Domain, Fracture, fracture_mesh
-from hydrofrac.meshes.patch import SizeLaw, _edge_key, _in_polygon, _size_callback
+from hydrofrac.meshes.patch import SizeLaw, _edge_key, _in_polygon, _size_callback, gathered
 from hydrofrac.network import CrackLine, CrackNetwork
 from hydrofrac.solver import Solver
 from hydrofrac.transfer import continue_run, transfer_fields
@@ -76,42 +76,54 @@ def test_unchanged_geometry_is_the_same_mesh_and_moves_the_fields_bit_for_bit():
     assert e_new - e_old == 0.0
 
 
-@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial: rank 0's arrays")
-def test_an_extension_changes_only_the_patch():
-    comm = MPI.COMM_WORLD
+def extension_changes_only_the_patch(comm):
     before = [[0.5, 0.0], [0.6, 0.0]]
     after = [[0.5, 0.0], [0.6, 0.0], [0.7, 0.02]]
     full = fracture_mesh(comm, DOM, network=network(before))
     patched = fracture_mesh(comm, DOM, network=network(after), previous=full, patch_radius=0.3)
     assert patched.remesh == "patch" and patched.fallback is None and patched.patch_cells > 0
-    a0, a1 = full.arrays, patched.arrays
-    check_arrays(a1, 16.0)
-    # every triangle but the patch's is an old one, vertex for vertex (Gmsh may also make a few
-    # of the patch's triangles again as they were)
-    k0 = {tuple(sorted(map(tuple, a0.nodes[t]))) for t in a0.tris}
-    k1 = [tuple(sorted(map(tuple, a1.nodes[t]))) for t in a1.tris]
-    kept = sum(k in k0 for k in k1)
-    assert len(a0.tris) - patched.patch_cells <= kept < len(a0.tris)
-    # the grown crack: its facets cover its new length, as in a full remesh of the new geometry
+    a0, a1 = gathered(comm, full.arrays), gathered(comm, patched.arrays)
     ref = fracture_mesh(comm, DOM, network=network(after))
-    for fm in (patched, ref):
-        e = fm.arrays.lines[PATH]
-        length = np.linalg.norm(fm.arrays.nodes[e[:, 0]] - fm.arrays.nodes[e[:, 1]], axis=1).sum()
-        assert length == pytest.approx(0.1 + np.hypot(0.1, 0.02), rel=1e-12)
-    # the fields outside the patch are copied bit for bit
+    kept = None
+    if comm.rank == 0:
+        check_arrays(a1, 16.0)
+        # every triangle but the patch's is an old one, vertex for vertex (Gmsh may also make a
+        # few of the patch's triangles again as they were)
+        k0 = {tuple(sorted(map(tuple, a0.nodes[t]))) for t in a0.tris}
+        k1 = [tuple(sorted(map(tuple, a1.nodes[t]))) for t in a1.tris]
+        kept = sum(k in k0 for k in k1)
+        assert len(a0.tris) - patched.patch_cells <= kept < len(a0.tris)
+        # the grown crack: its facets cover its new length, as in a full remesh of the new geometry
+        for a in (a1, ref.arrays):
+            e = a.lines[PATH]
+            length = np.linalg.norm(a.nodes[e[:, 0]] - a.nodes[e[:, 1]], axis=1).sum()
+            assert length == pytest.approx(0.1 + np.hypot(0.1, 0.02), rel=1e-12)
+    kept = comm.bcast(kept, root=0)
+    # the fields outside the patch are copied bit for bit (a kept cell stays on its rank)
     old, new = solver_on(full), solver_on(patched)
     old.set_initial_state(smooth)
     transfer_fields(old, new)
     same = 0
     dofs_old, dofs_new = compat.cell_dofs(old.V), compat.cell_dofs(new.V)
     U0, U1 = old.local_array().reshape(-1, 5), new.local_array().reshape(-1, 5)
-    where = {tuple(sorted(map(tuple, v))): c for c, v in enumerate(old.geometry.vertices)}
-    for c, v in enumerate(new.geometry.vertices):
+    n0, n1 = compat.num_cells_local(full.mesh), compat.num_cells_local(patched.mesh)
+    where = {tuple(sorted(map(tuple, v))): c for c, v in enumerate(old.geometry.vertices[:n0])}
+    for c, v in enumerate(new.geometry.vertices[:n1]):
         o = where.get(tuple(sorted(map(tuple, v))))
         if o is not None:
             assert sorted(map(tuple, U1[dofs_new[c]])) == sorted(map(tuple, U0[dofs_old[o]]))
             same += 1
-    assert same == kept
+    assert comm.allreduce(same) == kept
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial")
+def test_an_extension_changes_only_the_patch():
+    extension_changes_only_the_patch(MPI.COMM_WORLD)
+
+
+@pytest.mark.mpi
+def test_an_extension_changes_only_the_patch_on_2_ranks():
+    extension_changes_only_the_patch(MPI.COMM_WORLD)
 
 
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial: rank 0's arrays")
@@ -132,8 +144,9 @@ def test_a_patch_may_not_shorten_the_time_step():
     ok = fracture_mesh(comm, DOM, network=network(kink), previous=full, patch_radius=0.3)
     ref = fracture_mesh(comm, DOM, network=network(kink))
     assert ok.remesh == "patch" and ok.fallback is None
-    assert hmin(ok.arrays.nodes, ok.arrays.tris) < (1 - TOL) * h0
-    assert hmin(ref.arrays.nodes, ref.arrays.tris) <= (1 + TOL) * hmin(ok.arrays.nodes, ok.arrays.tris)
+    a = gathered(comm, ok.arrays)
+    assert hmin(a.nodes, a.tris) < (1 - TOL) * h0
+    assert hmin(ref.arrays.nodes, ref.arrays.tris) <= (1 + TOL) * hmin(a.nodes, a.tris)
     # here the patch's cells are smaller than the geometry needs: the full mesh is taken
     bend = before + [[0.7, -0.05]]
     fm = fracture_mesh(comm, DOM, network=network(bend), previous=full, patch_radius=0.6)
@@ -228,3 +241,32 @@ def test_remesh_default_is_the_scenarios_and_full_with_adapt(default, argv, expe
     assert Growth.from_args(args).remesh == expected
     with pytest.raises(ValueError, match="'full' or 'patch'"):
         cli.add_growth_arguments(cli.scenario_parser("test"), remesh="local")
+
+
+@pytest.mark.mpi
+def test_no_rank_holds_the_whole_mesh_in_a_local_remesh():
+    """A local remesh on 2 ranks: rank 0 receives only the region around the new segments, not
+    the old mesh, and each rank makes the new mesh from its own part (no rank passes the whole
+    mesh to DOLFINx); the result is the mesh a serial patch makes, cell for cell."""
+    comm = MPI.COMM_WORLD
+    dom = Domain(half_width=6.0, half_height=6.0, wellbore_radius=0.0, h_crack=0.05, h_far=0.4, grading=1.0)
+    before = [[0.5, 0.0], [0.6, 0.0]]
+    full = fracture_mesh(comm, dom, network=network(before))
+    fm = fracture_mesh(comm, dom, network=network(before + [[0.7, 0.02]]), previous=full, patch_radius=0.3)
+    assert fm.remesh == "patch" and fm.patch_cells > 0
+    total = comm.allreduce(compat.num_cells_local(fm.mesh))
+    region = comm.bcast(fm.region_cells, root=0)
+    print(f"region {region} of {total} cells; per rank {comm.allgather(len(fm.arrays.cells))}")
+    assert region < 0.5 * comm.allreduce(compat.num_cells_local(full.mesh))
+    assert max(comm.allgather(len(fm.arrays.cells))) < 0.75 * total
+    assert comm.allreduce(len(fm.arrays.cells)) == total
+    # the same triangles as the serial patch of the same mesh
+    a = gathered(comm, fm.arrays)
+    mine = None
+    if comm.rank == 0:
+        one = MPI.COMM_SELF
+        f1 = fracture_mesh(one, dom, network=network(before))
+        b = fracture_mesh(one, dom, network=network(before + [[0.7, 0.02]]), previous=f1, patch_radius=0.3).arrays
+        mine = ({tuple(sorted(map(tuple, a.nodes[t]))) for t in a.tris}
+                == {tuple(sorted(map(tuple, b.x[t]))) for t in b.cells})
+    assert comm.bcast(mine, root=0)
