@@ -435,15 +435,17 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
             mesh, ct, ft = patch.build(comm, previous.arrays, ROCK)
             arrays = None if previous.arrays is None else replace(previous.arrays, polylines=dict(lines))
             return FractureMesh(mesh, ct, ft, **tags, arrays=arrays, remesh="patch", patch_cells=0)
-        law = patch.SizeLaw(domain.h_crack, domain.h_far, domain.grading, domain.wellbore_radius,
-                            domain.h_tip, domain.tip_radius)
-        with gmsh_session(comm) as gmsh:
-            if comm.rank == 0:
-                gmsh.option.setNumber("General.Terminal", 0)
-            local, n_patch, why, stats = patch.patch_local(
-                comm, gmsh if comm.rank == 0 else None, previous.mesh, previous.facet_tags, previous.lines, lines,
-                patch_radius, law, tips, crack_tags=set(lines),
-                scale=2 * max(domain.half_width, domain.half_height))
+        local, n_patch, why, stats = None, 0, "a crack segment of the old mesh is gone", {}
+        if not removed:
+            law = patch.SizeLaw(domain.h_crack, domain.h_far, domain.grading, domain.wellbore_radius,
+                                domain.h_tip, domain.tip_radius)
+            with gmsh_session(comm) as gmsh:
+                if comm.rank == 0:
+                    gmsh.option.setNumber("General.Terminal", 0)
+                local, n_patch, why, stats = patch.patch_local(
+                    comm, gmsh if comm.rank == 0 else None, previous.mesh, previous.facet_tags, added, lines,
+                    patch_radius, law, tips, crack_tags=set(lines),
+                    scale=2 * max(domain.half_width, domain.half_height))
         shrinks = why is None and stats["inradius"] < (1 - patch.CELL_FLOOR_TOLERANCE) * stats["old_inradius"]
         full = None
         if shrinks:

@@ -593,10 +593,11 @@ def _inradii(xy):
     return inradius(xy) if len(xy) else np.zeros(0)
 
 
-def patch_local(comm, gmsh, mesh, facet_tags, old_polylines, polylines, radius: float, size: SizeLaw, tips=(),
+def patch_local(comm, gmsh, mesh, facet_tags, added, polylines, radius: float, size: SizeLaw, tips=(),
                 crack_tags=None, scale=None):
-    """A local remesh of the distributed ``mesh`` (made for ``old_polylines``) for the new crack
-    lines ``polylines``, on every rank: (:class:`LocalArrays`, patch triangles, why not, stats).
+    """A local remesh of the distributed ``mesh`` for the new crack lines ``polylines``, whose
+    segments ``added`` (:func:`new_segments`, at least one) the mesh lacks, on every rank:
+    (:class:`LocalArrays`, patch triangles, why not, stats).
 
     Each rank sends rank 0 only its cells within ``max(radius, grading)`` plus three cell
     sizes of a new segment's end, and the tagged facets there (the region).  Rank 0 meshes the
@@ -607,15 +608,9 @@ def patch_local(comm, gmsh, mesh, facet_tags, old_polylines, polylines, radius: 
     inradius of the new and of the old mesh (for the time-step check)."""
     from scipy.spatial import cKDTree
     polylines = {int(k): np.asarray(v, dtype=float) for k, v in polylines.items()}
-    added, removed = new_segments(old_polylines, polylines)
-    if removed:
-        return None, 0, "a crack segment of the old mesh is gone", {}
     x, cells, cxy, facets, fxy, values = compat.mesh_inputs(mesh, facet_tags)
     r_old = _inradii(cxy)
     old_min = comm.allreduce(float(r_old.min()) if r_old.size else math.inf, op=MPI.MIN)
-    if not added:
-        return LocalArrays(x, cells, facets, values, polylines), 0, None, {
-            "region_cells": 0, "inradius": old_min, "old_inradius": old_min}
     ends = np.array([p for _, a, b in added for p in (a, b)])
     edges = cxy - np.roll(cxy, 1, axis=1)
     hmax = comm.allreduce(float(np.sqrt((edges ** 2).sum(axis=2)).max()) if edges.size else 0.0, op=MPI.MAX)
@@ -627,7 +622,7 @@ def patch_local(comm, gmsh, mesh, facet_tags, old_polylines, polylines, radius: 
     parts = comm.gather((cells[sel], cxy[sel], sel, facets[fsel], values[fsel]), root=0)
     plan = None
     if comm.rank == 0:
-        plan = _plan_patch(gmsh, parts, comm.size, n_nodes, old_polylines, polylines, added, radius, size, tips,
+        plan = _plan_patch(gmsh, parts, comm.size, n_nodes, polylines, added, radius, size, tips,
                            crack_tags, scale)
     why, region, drop, patch_min, n_patch, unused = comm.bcast(None if plan is None else plan["common"], root=0)
     if why is not None:
@@ -638,11 +633,7 @@ def patch_local(comm, gmsh, mesh, facet_tags, old_polylines, polylines, radius: 
     keep[dropped_cells] = False
     kept_min = float(r_old[keep].min()) if keep.any() else math.inf
     new_min = min(comm.allreduce(kept_min, op=MPI.MIN), patch_min)
-    fkeep = np.ones(len(values), dtype=bool)
-    if drop:
-        fk = np.sort(facets, axis=1)
-        dropset = set(map(tuple, drop))
-        fkeep = np.array([(int(v), int(a), int(b)) not in dropset for v, (a, b) in zip(values, fk)], dtype=bool)
+    fkeep = ~_rows_in(np.column_stack([values, np.sort(facets, axis=1)]), np.asarray(drop, np.int64).reshape(-1, 3))
     add_f, add_v = plan["add"] if plan is not None else (np.zeros((0, 2), np.int64), np.zeros(0, np.int32))
     # the nodes no cell uses leave this rank's block, and every global index after them moves down
     start = comm.exscan(x.shape[0])
@@ -658,7 +649,16 @@ def patch_local(comm, gmsh, mesh, facet_tags, old_polylines, polylines, radius: 
     return local, n_patch, None, {"region_cells": region, "inradius": new_min, "old_inradius": old_min}
 
 
-def _plan_patch(gmsh, parts, nranks, n_nodes, old_polylines, polylines, added, radius, size, tips, crack_tags, scale):
+def _rows_in(a, b):
+    """Whether each row of the integer array ``a`` (m, k) is a row of ``b`` (n, k)."""
+    if not len(a) or not len(b):
+        return np.zeros(len(a), dtype=bool)
+    view = np.dtype((np.void, a.shape[1] * 8))
+    return np.isin(np.ascontiguousarray(a, np.int64).view(view).ravel(),
+                   np.ascontiguousarray(b, np.int64).view(view).ravel())
+
+
+def _plan_patch(gmsh, parts, nranks, n_nodes, polylines, added, radius, size, tips, crack_tags, scale):
     """Rank 0's part of :func:`patch_local`: the region's cells from every rank as one
     :class:`MeshArrays` (nodes by global index), its patch, and what each rank changes."""
     from scipy.spatial import cKDTree
@@ -686,7 +686,7 @@ def _plan_patch(gmsh, parts, nranks, n_nodes, old_polylines, polylines, added, r
     for t in np.unique(gv[inside]):
         e = np.sort(pos[inside & (gv == t)], axis=1)
         lines[int(t)] = e[np.lexsort(e.T[::-1])]
-    region = MeshArrays(nodes, tris, lines, old_polylines)
+    region = MeshArrays(nodes, tris, lines)
     near, all_nodes, new_t, new_lines, why = _patch(gmsh, region, polylines, added, radius, size, tips, crack_tags,
                                                    scale)
     if why is not None:
