@@ -181,8 +181,8 @@ def mesh_from_local_arrays(comm, x, cells, cell_tag, facets, facet_values, gdim=
 def mesh_inputs(mesh, facet_tags):
     """This rank's part of a triangle mesh as the inputs of :func:`mesh_from_local_arrays`, in
     the geometry's global node numbering: (x (n, 2) the owned nodes, cells (c, 3) and their
-    coordinates (c, 3, 2) for the owned cells, facets (k, 2) and their coordinates (k, 2, 2) and
-    values (k,) for the owned tagged facets).  The mesh made again from them has the same
+    coordinates (c, 3, 2) for the owned cells, facets (k, 2) and values (k,) for the owned
+    tagged facets).  The mesh made again from them has the same
     cells, nodes and tags on the same ranks (0.9: ``geometry.dofmap`` is a 2D array,
     ``geometry.index_map()`` unchanged)."""
     geo = mesh.geometry
@@ -203,8 +203,8 @@ def mesh_inputs(mesh, facet_tags):
     idx = np.asarray(facet_tags.indices)
     own = idx < mesh.topology.index_map(tdim - 1).size_local
     fg = v2g[f2v[idx[own]]]
-    return (x, g_of[dof[:nc]], geo.x[dof[:nc], :2].copy(), g_of[fg], geo.x[fg, :2].copy(),
-            np.asarray(facet_tags.values)[own].astype(np.int32))
+    values = np.asarray(facet_tags.values)[own].astype(np.int32)
+    return x, g_of[dof[:nc]], geo.x[dof[:nc], :2].copy(), g_of[fg], values
 
 
 def gmsh_compiled_size_callback(gmsh, address, data):

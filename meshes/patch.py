@@ -317,7 +317,7 @@ def _straight_pieces(edges, nodes, tol=1e-9):
     out = []
     for tag, es in by_tag.items():
         nbr = defaultdict(list)
-        for a, b in es:
+        for a, b in sorted(es):  # (in index order: a set of tuples iterates in the order of their hashes)
             nbr[a].append(b)
             nbr[b].append(a)
         done = set()
@@ -599,25 +599,18 @@ def patch_local(comm, gmsh, mesh, facet_tags, added, polylines, radius: float, s
     segments ``added`` (:func:`new_segments`, at least one) the mesh lacks, on every rank:
     (:class:`LocalArrays`, patch triangles, why not, stats).
 
-    Each rank sends rank 0 only its cells within ``max(radius, grading)`` plus three cell
-    sizes of a new segment's end, and the tagged facets there (the region).  Rank 0 meshes the
+    Each rank sends rank 0 only its cells that the patch can take, and a margin (the region,
+    :func:`_region`), and its tagged facets there.  Rank 0 meshes the
     patch of that region (:func:`_patch`, with Gmsh; ``gmsh`` is None on the other ranks) and
     sends each rank the old cells it drops and the patch cells it takes (those nearest to its
     dropped cells).  Every rank keeps its other cells, nodes and facets as they are; the new
     nodes join the last rank's block.  ``stats``: the cells rank 0 received, and the smallest
     inradius of the new and of the old mesh (for the time-step check)."""
-    from scipy.spatial import cKDTree
     polylines = {int(k): np.asarray(v, dtype=float) for k, v in polylines.items()}
-    x, cells, cxy, facets, fxy, values = compat.mesh_inputs(mesh, facet_tags)
+    x, cells, cxy, facets, values = compat.mesh_inputs(mesh, facet_tags)
     r_old = _inradii(cxy)
     old_min = comm.allreduce(float(r_old.min()) if r_old.size else math.inf, op=MPI.MIN)
-    ends = np.array([p for _, a, b in added for p in (a, b)])
-    edges = cxy - np.roll(cxy, 1, axis=1)
-    hmax = comm.allreduce(float(np.sqrt((edges ** 2).sum(axis=2)).max()) if edges.size else 0.0, op=MPI.MAX)
-    reach = max(radius, size.grading) + 3.0 * hmax
-    tree = cKDTree(ends)
-    sel = np.flatnonzero(tree.query(cxy.mean(axis=1))[0] < reach) if len(cxy) else np.zeros(0, np.int64)
-    fsel = np.flatnonzero(tree.query(fxy.mean(axis=1))[0] < reach + hmax) if len(fxy) else np.zeros(0, np.int64)
+    sel, fsel = _region(comm, cells, cxy, facets, added, polylines, radius, size, tips)
     n_nodes = comm.allreduce(x.shape[0])
     parts = comm.gather((cells[sel], cxy[sel], sel, facets[fsel], values[fsel]), root=0)
     plan = None
@@ -647,6 +640,41 @@ def patch_local(comm, gmsh, mesh, facet_tags, added, polylines, radius: float, s
                         renumber(np.concatenate([facets[fkeep], add_f])), np.concatenate([values[fkeep], add_v]),
                         polylines)
     return local, n_patch, None, {"region_cells": region, "inradius": new_min, "old_inradius": old_min}
+
+
+#: the rings of cells around the patch's seeds that the region adds: the patch grows by a ring
+#: at each of at most 4 passes that remove a pinch (:func:`_patch`), and one more holds the
+#: cells next to it
+REGION_RINGS = 5
+
+
+def _region(comm, cells, cxy, facets, added, polylines, radius, size, tips):
+    """(cells, tagged facets) of this rank that rank 0 needs to make the patch: the seeds (the
+    cells within ``radius`` of an end of an ``added`` segment, and those within the size law's
+    grading that are too coarse for the new cracks: every cell :func:`_patch` can select), and
+    :data:`REGION_RINGS` rings of cells around them (node neighbours, across ranks).  The patch
+    made from the region is the one the whole mesh gives, but for an island of old cells inside
+    the patch wider than the rings, which then stays as it is (a hole in the patch)."""
+    from scipy.spatial import cKDTree
+    ends = np.array([p for _, a, b in added for p in (a, b)])
+    seed = np.zeros(len(cells), dtype=bool)
+    if len(cells):
+        cent = cxy.mean(axis=1)
+        dist = cKDTree(ends).query(cent)[0]
+        seed = dist < radius
+        reach = np.flatnonzero(~seed & (dist < size.grading))
+        if reach.size:
+            xy = cxy[reach]
+            longest = np.sqrt(((xy - np.roll(xy, 1, axis=1)) ** 2).sum(axis=2)).max(axis=1)
+            seed[reach] = longest > 1.5 * size.sampler(polylines, tips)(cent[reach])
+    nodes = np.unique(cells[seed])
+    inside = seed
+    for _ in range(REGION_RINGS):
+        nodes = np.unique(np.concatenate(comm.allgather(nodes)))
+        inside = np.isin(cells, nodes).any(axis=1)
+        nodes = np.unique(cells[inside])
+    nodes = np.unique(np.concatenate(comm.allgather(nodes)))
+    return np.flatnonzero(inside), np.flatnonzero(np.isin(facets, nodes).all(axis=1))
 
 
 def _rows_in(a, b):

@@ -256,7 +256,6 @@ def test_no_rank_holds_the_whole_mesh_in_a_local_remesh():
     assert fm.remesh == "patch" and fm.patch_cells > 0
     total = comm.allreduce(compat.num_cells_local(fm.mesh))
     region = comm.bcast(fm.region_cells, root=0)
-    print(f"region {region} of {total} cells; per rank {comm.allgather(len(fm.arrays.cells))}")
     assert region < 0.5 * comm.allreduce(compat.num_cells_local(full.mesh))
     assert max(comm.allgather(len(fm.arrays.cells))) < 0.75 * total
     assert comm.allreduce(len(fm.arrays.cells)) == total
@@ -270,3 +269,23 @@ def test_no_rank_holds_the_whole_mesh_in_a_local_remesh():
         mine = ({tuple(sorted(map(tuple, a.nodes[t]))) for t in a.tris}
                 == {tuple(sorted(map(tuple, b.x[t]))) for t in b.cells})
     assert comm.bcast(mine, root=0)
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial")
+def test_the_region_makes_the_patch_the_whole_mesh_makes(monkeypatch):
+    """Rank 0 receives only the region around the patch's seeds (patch._region); the patch made
+    from it is the one made from the whole old mesh, triangle for triangle, also where old crack
+    edges lie inside the patch."""
+    from hydrofrac.meshes import patch
+    comm = MPI.COMM_WORLD
+    before = [[0.5, 0.0], [0.6, 0.0]]  # (the old path and the natural fracture's end are in the patch)
+    after = before + [[0.7, 0.02], [0.78, 0.06]]
+    full = fracture_mesh(comm, DOM, network=network(before))
+    small = fracture_mesh(comm, DOM, network=network(after), previous=full, patch_radius=0.3)
+    monkeypatch.setattr(patch, "_region", lambda comm, cells, cxy, facets, *a, **k: (np.arange(len(cells)),
+                                                                                     np.arange(len(facets))))
+    whole = fracture_mesh(comm, DOM, network=network(after), previous=full, patch_radius=0.3)
+    assert small.remesh == whole.remesh == "patch" and small.patch_cells == whole.patch_cells > 0
+    assert 0 < small.region_cells < whole.region_cells
+    a, b = small.arrays, whole.arrays
+    assert ({tuple(sorted(map(tuple, a.x[t]))) for t in a.cells} == {tuple(sorted(map(tuple, b.x[t]))) for t in b.cells})
