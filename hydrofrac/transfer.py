@@ -188,12 +188,16 @@ def transfer_fields(old, new, method="projection", k=16):
                           else (np.zeros(0, np.int64), np.zeros(0, np.int64)))
     copied = None
     if same_new.size:
-        nodes = new.ref.nodes
-        pn = g.x0[same_new, None, :] + np.einsum("cij,nj->cni", g.J[same_new], nodes)
-        J_old = np.linalg.inv(Jinv[same_old])
-        po = x0[same_old, None, :] + np.einsum("cij,nj->cni", J_old, old.ref.nodes)
-        perm = np.argmin(((pn[:, :, None, :] - po[:, None, :, :]) ** 2).sum(axis=3), axis=2)
-        copied = np.take_along_axis(U[same_old], perm[:, :, None], axis=1)  # (c, nb, 5)
+        copied = U[same_old].copy()  # (c, nb, 5)
+        # the cells whose vertices come in another order: their nodes are matched by position
+        # (a cell with its vertices in the old order has its nodes in the old order too)
+        turned = np.flatnonzero((g.vertices[same_new] != V_old[same_old]).any(axis=(1, 2)))
+        if turned.size:
+            sn, so = same_new[turned], same_old[turned]
+            pn = g.x0[sn, None, :] + np.einsum("cij,nj->cni", g.J[sn], new.ref.nodes)
+            po = x0[so, None, :] + np.einsum("cij,nj->cni", np.linalg.inv(Jinv[so]), old.ref.nodes)
+            perm = np.argmin(((pn[:, :, None, :] - po[:, None, :, :]) ** 2).sum(axis=3), axis=2)
+            copied[turned] = np.take_along_axis(U[so], perm[:, :, None], axis=1)
     todo = np.setdiff1d(np.arange(n_new), same_new)  # the cells the transfer computes
     miss = 0.0
     vals = np.zeros((0, 5))
