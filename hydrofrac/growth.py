@@ -994,8 +994,8 @@ class GrowthDriver:
         kinds = getattr(self.build, "kinds", None)
         if kinds is None or not getattr(self.build, "local", False):
             return {}
-        return {"local_remeshes": kinds["patch"], "full_remesh_fallbacks": kinds["full_fallback"],
-                "fallback_reasons": dict(self.build.fallbacks)}
+        return {"local_remeshes": kinds["patch"], "patches_retried": kinds.get("retried", 0),
+                "full_remesh_fallbacks": kinds["full_fallback"], "fallback_reasons": dict(self.build.fallbacks)}
 
     def _fingerprint(self):
         """What :meth:`checkpoint_state` (without the mesh) depends on, cheaply: its lists only

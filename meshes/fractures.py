@@ -115,6 +115,8 @@ class FractureMesh:
     fallback: Optional[str] = None
     #: a local remesh: the old cells rank 0 received to make the patch (the region around it)
     region_cells: int = 0
+    #: a local remesh made a second time with a larger radius (its first patch had a smaller cell)
+    retried: bool = False
 
 
 def perforation_points(domain: Domain, perf: Perforation):
@@ -436,17 +438,31 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
             arrays = None if previous.arrays is None else replace(previous.arrays, polylines=dict(lines))
             return FractureMesh(mesh, ct, ft, **tags, arrays=arrays, remesh="patch", patch_cells=0)
         local, n_patch, why, stats = None, 0, "a crack segment of the old mesh is gone", {}
+        retried = False
+
+        def shrinks_(why, stats):
+            return why is None and stats["inradius"] < (1 - patch.CELL_FLOOR_TOLERANCE) * stats["old_inradius"]
         if not removed:
             law = patch.SizeLaw(domain.h_crack, domain.h_far, domain.grading, domain.wellbore_radius,
                                 domain.h_tip, domain.tip_radius)
-            with gmsh_session(comm) as gmsh:
-                if comm.rank == 0:
-                    gmsh.option.setNumber("General.Terminal", 0)
-                local, n_patch, why, stats = patch.patch_local(
-                    comm, gmsh if comm.rank == 0 else None, previous.mesh, previous.facet_tags, added, lines,
-                    patch_radius, law, tips, crack_tags=set(lines),
-                    scale=2 * max(domain.half_width, domain.half_height))
-        shrinks = why is None and stats["inradius"] < (1 - patch.CELL_FLOOR_TOLERANCE) * stats["old_inradius"]
+
+            def make(radius):
+                with gmsh_session(comm) as gmsh:
+                    if comm.rank == 0:
+                        gmsh.option.setNumber("General.Terminal", 0)
+                    return patch.patch_local(comm, gmsh if comm.rank == 0 else None, previous.mesh,
+                                             previous.facet_tags, added, lines, radius, law, tips,
+                                             crack_tags=set(lines),
+                                             scale=2 * max(domain.half_width, domain.half_height))
+            local, n_patch, why, stats = make(patch_radius)
+            # a patch that cannot be made, or whose smallest cell is smaller than the old mesh's,
+            # is made once more with PATCH_RETRY_RADIUS times the radius (more room for Gmsh);
+            # the second is taken if it can be made and its smallest cell is larger
+            if (why is not None or shrinks_(why, stats)) and patch.PATCH_RETRY_RADIUS > 1:
+                second = make(patch.PATCH_RETRY_RADIUS * patch_radius)
+                if second[2] is None and (why is not None or second[3]["inradius"] > stats["inradius"]):
+                    (local, n_patch, why, stats), retried = second, True
+        shrinks = shrinks_(why, stats)
         full = None
         if shrinks:
             # is the smaller cell the new geometry's (a kink, a short segment) or the patch's?
@@ -461,7 +477,7 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
         if why is None:
             mesh, ct, ft = patch.build(comm, local, ROCK)
             return FractureMesh(mesh, ct, ft, **tags, arrays=local, remesh="patch", patch_cells=n_patch,
-                                region_cells=stats["region_cells"])
+                                region_cells=stats["region_cells"], retried=retried)
         fallback = why
         if shrinks:  # (the full mesh is made already; its arrays live on rank 0)
             mesh, ct, ft = distribute(comm, full, ROCK)

@@ -127,13 +127,15 @@ def test_an_extension_changes_only_the_patch_on_2_ranks():
 
 
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial: rank 0's arrays")
-def test_a_patch_may_not_shorten_the_time_step():
+def test_a_patch_may_not_shorten_the_time_step(monkeypatch):
     """A patch keeps every cell outside it, so a small cell it makes (the smallest inradius sets
     dt) stays for the rest of the run.  A patch whose smallest cell is more than
-    CELL_FLOOR_TOLERANCE (2 %) below the old mesh's is checked against a full remesh of the
-    same geometry: if the full mesh's smallest cell is 2 % larger, the full mesh is taken and
-    the fallback says why; if not, the smaller cell is the new geometry's (a kink) and the
-    patch stays."""
+    CELL_FLOOR_TOLERANCE (2 %) below the old mesh's is made again with PATCH_RETRY_RADIUS
+    times the radius; if that one still is, it is checked against a full remesh of the same
+    geometry: if the full mesh's smallest cell is 2 % larger, the full mesh is taken and the
+    fallback says why; if not, the smaller cell is the new geometry's (a kink) and the patch
+    stays."""
+    from hydrofrac.meshes import patch
     from hydrofrac.meshes.patch import CELL_FLOOR_TOLERANCE as TOL, smallest_inradius as hmin
     comm = MPI.COMM_WORLD
     before = [[0.5, 0.0], [0.6, 0.0]]
@@ -147,22 +149,41 @@ def test_a_patch_may_not_shorten_the_time_step():
     a = gathered(comm, ok.arrays)
     assert hmin(a.nodes, a.tris) < (1 - TOL) * h0
     assert hmin(ref.arrays.nodes, ref.arrays.tris) <= (1 + TOL) * hmin(a.nodes, a.tris)
-    # here the patch's cells are smaller than the geometry needs: the full mesh is taken
+    # here the patch of radius 0.6 makes cells smaller than the geometry needs; the one of
+    # twice the radius does not, and is taken
     bend = before + [[0.7, -0.05]]
     fm = fracture_mesh(comm, DOM, network=network(bend), previous=full, patch_radius=0.6)
     ref = fracture_mesh(comm, DOM, network=network(bend))
+    assert fm.remesh == "patch" and fm.retried and fm.fallback is None
+    a = gathered(comm, fm.arrays)
+    assert hmin(a.nodes, a.tris) >= (1 - TOL) * h0
+    # without the second patch the full mesh is taken
+    monkeypatch.setattr(patch, "PATCH_RETRY_RADIUS", 1.0)
+    fm = fracture_mesh(comm, DOM, network=network(bend), previous=full, patch_radius=0.6)
     assert fm.remesh == "full" and "smaller cell than a full remesh" in fm.fallback
     assert hmin(fm.arrays.nodes, fm.arrays.tris) == hmin(ref.arrays.nodes, ref.arrays.tris)
+    # the first patch alone (radius 0.6) is the one whose cell is smaller
+    monkeypatch.setattr(patch, "CELL_FLOOR_TOLERANCE", 1.0)
+    first = fracture_mesh(comm, DOM, network=network(bend), previous=full, patch_radius=0.6)
+    assert not first.retried
+    a = gathered(comm, first.arrays)
+    assert hmin(a.nodes, a.tris) < (1 - TOL) * h0
 
 
 @pytest.mark.mpi
-def test_a_patch_checked_against_a_full_remesh_on_2_ranks():
+def test_a_patch_checked_against_a_full_remesh_on_2_ranks(monkeypatch):
     """The check of :func:`test_a_patch_may_not_shorten_the_time_step` is collective: the full
-    mesh's arrays live on rank 0 only, and every rank takes the same mesh."""
+    mesh's arrays live on rank 0 only, and every rank takes the same mesh.  The second patch
+    is taken on every rank too."""
+    from hydrofrac.meshes import patch
     comm = MPI.COMM_WORLD
     before = [[0.5, 0.0], [0.6, 0.0]]
     full = fracture_mesh(comm, DOM, network=network(before))
-    fm = fracture_mesh(comm, DOM, network=network(before + [[0.7, -0.05]]), previous=full, patch_radius=0.6)
+    bend = network(before + [[0.7, -0.05]])
+    fm = fracture_mesh(comm, DOM, network=bend, previous=full, patch_radius=0.6)
+    assert all(r == ("patch", True, None) for r in comm.allgather((fm.remesh, fm.retried, fm.fallback)))
+    monkeypatch.setattr(patch, "PATCH_RETRY_RADIUS", 1.0)
+    fm = fracture_mesh(comm, DOM, network=bend, previous=full, patch_radius=0.6)
     assert all(r == ("full", True) for r in comm.allgather((fm.remesh, "smaller cell" in (fm.fallback or ""))))
     cells = comm.allreduce(compat.num_cells_local(fm.mesh), op=MPI.SUM)
     assert comm.rank != 0 or cells == len(fm.arrays.tris)
