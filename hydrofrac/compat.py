@@ -486,15 +486,22 @@ def require_tags(comm, tags, wanted, what, where, fix):
         raise ValueError(f"{what} tag(s) {missing} are not in {where} {sorted(present)}; {fix}")
 
 
-def cells_containing(mesh, points):
+def cells_containing(mesh, points, cells=None):
     """(point index, local cell) pairs of every cell (owned or ghost) that contains one of the
     ``points`` (m, 2), by DOLFINx's bounding-box tree (0.9: ``bb_tree`` and the same
-    ``compute_*`` calls).  The tree is built once per mesh."""
+    ``compute_*`` calls).  The tree of all cells is built once per mesh; with ``cells`` (local
+    indices, a superset of the cells wanted) a tree of those cells only is built for this
+    call."""
     import dolfinx.geometry
-    tree = getattr(mesh, "_hydrofrac_bb_tree", None)
-    if tree is None:
-        tree = dolfinx.geometry.BoundingBoxTree(mesh, mesh.topology.dim)
-        mesh._hydrofrac_bb_tree = tree
+    if cells is not None:
+        if not len(cells):
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        tree = dolfinx.geometry.BoundingBoxTree(mesh, mesh.topology.dim, np.asarray(cells, dtype=np.int32))
+    else:
+        tree = getattr(mesh, "_hydrofrac_bb_tree", None)
+        if tree is None:
+            tree = dolfinx.geometry.BoundingBoxTree(mesh, mesh.topology.dim)
+            mesh._hydrofrac_bb_tree = tree
     X = np.zeros((len(points), 3))
     X[:, :2] = points
     hits = dolfinx.geometry.compute_colliding_cells(mesh, dolfinx.geometry.compute_collisions(tree, X), X)

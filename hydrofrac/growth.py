@@ -129,22 +129,20 @@ def effective_stress_profiles(solver, tips, params: GrowthParams):
     """:func:`effective_stress_profile` of several (tip, direction) pairs, with one stress
     evaluation for all their sample points (collective; the same values as one by one)."""
     theta = np.radians(np.linspace(-params.max_angle, params.max_angle, params.n_angles))
-    frames = []
-    for tip, direction in tips:
-        ang = np.arctan2(direction[1], direction[0]) + theta
-        t = np.stack([np.cos(ang), np.sin(ang)], axis=1)   # along the trial plane
-        n = np.stack([-np.sin(ang), np.cos(ang)], axis=1)  # its normal
-        frames.append((np.asarray(tip, dtype=float) + params.r * t, t, n))
-    if not frames:
+    if not len(tips):
         return []
-    sigs = stresses_at(solver, [f[0] for f in frames])  # (each tip's samples located once, while it stays)
-    sg = np.concatenate(sigs)  # all tips at once
-    t = np.concatenate([f[1] for f in frames])
-    n = np.concatenate([f[2] for f in frames])
-    tr = np.einsum("mij,mj->mi", sg, n)
-    sn = np.einsum("mi,mi->m", tr, n)
-    st = np.einsum("mi,mi->m", tr, t)
-    seff = rm.effective_stress(np.stack([sn, st], axis=-1), params.beta).reshape(len(frames), theta.size)
+    P = np.array([np.asarray(tip, dtype=float) for tip, _ in tips]).reshape(-1, 2)
+    D = np.array([np.asarray(d, dtype=float) for _, d in tips]).reshape(-1, 2)
+    ang = np.arctan2(D[:, 1], D[:, 0])[:, None] + theta  # (tips, samples), all tips at once
+    c, s = np.cos(ang).ravel(), np.sin(ang).ravel()   # t = (c, s) along the trial plane, n = (-s, c) its normal
+    X = P.repeat(theta.size, axis=0) + params.r * np.column_stack([c, s])
+    # (each tip's samples located once, while it stays)
+    sg = np.concatenate(stresses_at(solver, np.split(X, len(tips))))
+    sxx, syy, sxy = sg[:, 0, 0], sg[:, 1, 1], sg[:, 0, 1]
+    tr_x, tr_y = -sxx * s + sxy * c, -sxy * s + syy * c  # traction on the plane: sigma n
+    sn = -tr_x * s + tr_y * c
+    st = tr_x * c + tr_y * s
+    seff = rm.effective_stress(np.stack([sn, st], axis=-1), params.beta).reshape(len(tips), theta.size)
     return [(theta, row) for row in seff]
 
 
@@ -273,17 +271,22 @@ def argmax_parabola(theta, s):
     return float(theta[k]), float(s[k])
 
 
-def near_tip_direction(K_I, K_II, beta=1.0, n=20001):
+def near_tip_direction(K_I, K_II, beta=1.0, n=401, n_fine=201):
     """Analytical growth angle of the maximum-s̆ criterion from the singular near-tip field
     (Williams): sigma_thth = cos(θ/2)[K_I cos²(θ/2) − 3/2 K_II sin θ] / sqrt(2πr),
     tau_rθ = cos(θ/2)[K_I sin θ + K_II (3 cos θ − 1)] / (2 sqrt(2πr)); maximise
-    sqrt(<sigma_thth>² + (β tau_rθ)²) over θ in (−π, π)."""
+    sqrt(<sigma_thth>² + (β tau_rθ)²) over θ in (−π, π): the best of ``n`` angles, then
+    ``n_fine`` angles between its two neighbours, refined by a parabola (a spacing of
+    1.6e-4 rad, finer than one grid of 20001 angles, at 3 % of its cost)."""
+    def seff(th):
+        c = np.cos(th / 2)
+        stt = c * (K_I * c * c - 1.5 * K_II * np.sin(th))
+        trt = 0.5 * c * (K_I * np.sin(th) + K_II * (3 * np.cos(th) - 1))
+        return rm.effective_stress(np.stack([stt, trt], axis=-1), beta)
     th = np.linspace(-np.pi * 0.999, np.pi * 0.999, n)
-    c = np.cos(th / 2)
-    stt = c * (K_I * c * c - 1.5 * K_II * np.sin(th))
-    trt = 0.5 * c * (K_I * np.sin(th) + K_II * (3 * np.cos(th) - 1))
-    s = rm.effective_stress(np.stack([stt, trt], axis=-1), beta)
-    return argmax_parabola(th, s)[0]
+    k = int(np.argmax(seff(th)))
+    fine = np.linspace(th[max(k - 1, 0)], th[min(k + 1, n - 1)], n_fine)
+    return argmax_parabola(fine, seff(fine))[0]
 
 
 @dataclass
@@ -306,16 +309,34 @@ def cod_direction(iface, tag, tip, params: GrowthParams):
     of the maximum-s̆ criterion of the singular field (:func:`near_tip_direction`, with
     ``params.beta``), times ``params.cod_relax``.  None if the crack has no points there or
     is not open."""
-    on = iface.points_of_crack(tag)
-    on = on[np.linalg.norm(iface.points.reshape(-1, 2)[on] - np.asarray(tip, float), axis=1)
-            <= (params.cod_window or params.r)]
-    w = iface.weights.reshape(-1)[on]
-    tot = iface.solver.comm.allreduce(np.array([w @ iface.state[1].reshape(-1)[on],
-                                                w @ iface.state[2].reshape(-1)[on], w.size], dtype=float),
-                                      op=MPI.SUM)
+    return cod_directions(iface, [(tag, tip)], params)[0]
+
+
+def cod_directions(iface, tips, params: GrowthParams):
+    """:func:`cod_direction` of several (tag, tip) pairs, with one reduction for all
+    (collective)."""
+    return [cod_angle(tot, params) for tot in cod_sums(iface, tips, params)]
+
+
+def cod_angle(tot, params: GrowthParams):
+    """:func:`cod_direction` from the sums (Σ w δ, Σ w s, points) of :func:`cod_sums`."""
     if tot[2] == 0 or not tot[0] > 0:
         return None
     return params.cod_relax * near_tip_direction(1.0, -tot[1] / tot[0], params.beta)
+
+
+def cod_sums(iface, tips, params: GrowthParams):
+    """(Σ w δ, Σ w s, number of Gauss points) of crack ``tag`` within the window of ``tip``, for
+    each (tag, tip) pair, over all ranks (one reduction; collective)."""
+    sums = np.zeros((len(tips), 3))
+    xy = iface.points.reshape(-1, 2)
+    for k, (tag, tip) in enumerate(tips):
+        on = iface.points_of_crack(tag)
+        on = on[np.linalg.norm(xy[on] - np.asarray(tip, float), axis=1) <= (params.cod_window or params.r)]
+        w = iface.weights.reshape(-1)[on]
+        sums[k] = w @ iface.state[1].reshape(-1)[on], w @ iface.state[2].reshape(-1)[on], w.size
+    iface.solver.comm.Allreduce(MPI.IN_PLACE, sums, op=MPI.SUM)
+    return sums
 
 
 def advance_tips(solver, tips, params: GrowthParams, da: float, threshold: float, ready=None, direction_of=None,
@@ -708,15 +729,19 @@ class GrowthDriver:
                      for i, r in enumerate(ready)]
         before_state = self._state_before_check()  # (restore_state takes no mesh)
         before = [(t.point.copy(), t.direction.copy()) for t in self.tips]
-        direction_of = None
-        if self.params.direction == "cod":
-            def direction_of(i):
-                return (cod_direction(self.iface, self.tags[i], self.tips[i].point, self.params)
-                        if len(self.paths[i]) > 1 else None)
         speeds = self.current_speeds()
         branches = {}
         n_before = len(self.tips)
         crossed = self._cross(solver, ready)  # arrested tips whose far side reaches the onset
+        direction_of = None
+        if self.params.direction == "cod":  # (every tip that may advance, in one reduction)
+            cod = [i for i in range(n_before) if self.tips[i].active and ready[i] and i not in crossed
+                   and len(self.paths[i]) > 1]
+            sums = dict(zip(cod, cod_sums(self.iface, [(self.tags[i], self.tips[i].point) for i in cod],
+                                          self.params)))
+
+            def direction_of(i):  # (the angle only for the tips that reach the onset)
+                return cod_angle(sums[i], self.params) if i in sums else None
         moved = advance_tips(solver, self.tips[:n_before], self.params, self.da, self.threshold,
                              ready=[r and i not in crossed for i, r in enumerate(ready)],
                              direction_of=direction_of, speeds=speeds, branches=branches)

@@ -33,10 +33,20 @@ def _locate(solver, sets):
     ranks), this rank's part of the first three."""
     X = np.concatenate(sets) if sets else np.zeros((0, 2))
     nloc = compat.num_cells_local(solver.mesh)
-    pts, cells = compat.cells_containing(solver.mesh, X)
-    own = cells < nloc
-    pts, cells = pts[own], cells[own]
     g = solver.geometry
+    # the owned cells whose bounding box meets a set's: a tree of these only (a set is often a
+    # circle of samples around one crack tip; the tree of all cells costs more than the query)
+    box = g.__dict__.get("_cell_boxes")
+    if box is None:  # (x_lo, y_lo, x_hi, y_hi) of each owned cell, once per mesh
+        v = g.vertices[:nloc]
+        box = g._cell_boxes = np.vstack([np.minimum(np.minimum(v[:, 0], v[:, 1]), v[:, 2]).T,
+                                         np.maximum(np.maximum(v[:, 0], v[:, 1]), v[:, 2]).T])
+    sb = np.array([[*S.min(axis=0), *S.max(axis=0)] for S in sets if S.shape[0]]).reshape(-1, 4)
+    near = ((box[0] <= sb[:, 2:3]) & (box[2] >= sb[:, 0:1]) & (box[1] <= sb[:, 3:4])
+            & (box[3] >= sb[:, 1:2])).any(axis=0)
+    pts, cells = compat.cells_containing(solver.mesh, X, np.flatnonzero(near))
+    order = np.lexsort((cells, pts))  # (by point, then cell: the sums do not depend on the tree)
+    pts, cells = pts[order], cells[order]
     ref = np.einsum("cij,cj->ci", g.Jinv[cells], X[pts] - g.x0[cells])
     phi = solver.ref.tabulate(ref) if cells.size else np.zeros((0, compat.cell_dofs(solver.V).shape[1]))
     cnt = np.bincount(pts, minlength=X.shape[0]).astype(float)
@@ -77,17 +87,20 @@ def fields_at(solver, point_sets) -> list:
     per crack tip) with one reduction for all (collective)."""
     sets = [np.ascontiguousarray(X, dtype=float).reshape(-1, 2) for X in point_sets]
     sizes = [X.shape[0] for X in sets]
-    out = np.zeros((sum(sizes), 5))
-    counts = []
-    start = 0
     U = solver.x.array_r.reshape(-1, 5)
-    for (pts, rows, phi, cnt), m in zip(_located(solver, sets), sizes):
-        if pts.size:
-            np.add.at(out, start + pts, np.einsum("kn,knc->kc", phi, U[rows]))
-        counts.append(cnt)
-        start += m
+    located = _located(solver, sets)
+    starts = np.r_[0, np.cumsum(sizes)[:-1]] if sets else np.zeros(0, dtype=np.int64)
+    # every set's (point, cell) pairs at once: one product, and a sum over the cells of each point
+    pts = np.concatenate([lo[0] + s0 for lo, s0 in zip(located, starts)]) if sets else np.zeros(0, np.int64)
+    out = np.zeros((sum(sizes), 5))
+    if pts.size:
+        rows = np.concatenate([lo[1] for lo in located])
+        phi = np.concatenate([lo[2] for lo in located])
+        vals = np.einsum("kn,knc->kc", phi, U[rows])
+        for c in range(5):
+            out[:, c] = np.bincount(pts, weights=vals[:, c], minlength=out.shape[0])
     solver.comm.Allreduce(MPI.IN_PLACE, out, op=MPI.SUM)
-    cnt = np.concatenate(counts) if counts else np.zeros(0)
+    cnt = np.concatenate([lo[3] for lo in located]) if sets else np.zeros(0)
     with np.errstate(invalid="ignore", divide="ignore"):
         vals = out / cnt[:, None]
     return np.split(vals, np.cumsum(sizes)[:-1]) if sets else []

@@ -47,7 +47,7 @@ def check_point_sets_located_together(monkeypatch):
     solver.set_initial_state(quadratic)
     queries = []
     real = pr.compat.cells_containing
-    monkeypatch.setattr(pr.compat, "cells_containing", lambda m, X: queries.append(len(X)) or real(m, X))
+    monkeypatch.setattr(pr.compat, "cells_containing", lambda m, X, c=None: queries.append(len(X)) or real(m, X, c))
     field_at(solver, sets[1])
     got = pr.fields_at(solver, sets)
     assert queries == [5, 16]  # the second set alone, then the two others together
@@ -68,6 +68,29 @@ def test_point_sets_located_together_mpi(monkeypatch):
 @pytest.mark.mpi
 def test_field_at_is_exact_for_fields_in_the_space_mpi():
     check_field_at()
+
+
+def test_points_are_located_in_a_tree_of_the_cells_near_them(monkeypatch):
+    """A point set (the growth criterion's circle of samples around a tip) is located in a
+    bounding-box tree of the owned cells whose boxes meet the set's box only: the same cells,
+    hence the same values, as the tree of all cells, from a tree of fewer cells."""
+    import hydrofrac.probes as pr
+    mesh = compat.create_rectangle(MPI.COMM_WORLD, (0.0, 0.0), (1.0, 1.0), 16, 16)
+    solver = Solver(mesh, 2, ROCK)
+    solver.set_initial_state(quadratic)
+    a = np.radians(np.linspace(-85, 85, 121))
+    circle = np.column_stack([0.5 + 0.05 * np.cos(a), 0.5 + 0.05 * np.sin(a)])
+    circle = np.vstack([circle, [[0.5, 0.5], [0.5 + 1 / 16, 0.5]]])  # a vertex and a point on an edge
+    trees = []
+    real = pr.compat.cells_containing
+    monkeypatch.setattr(pr.compat, "cells_containing", lambda m, X, c=None: trees.append(c) or real(m, X, c))
+    got = field_at(solver, circle)
+    nloc = compat.num_cells_local(mesh)
+    assert 0 < len(trees[0]) < nloc / 10
+    pts, cells = real(mesh, circle)  # the tree of all cells
+    own = cells < nloc
+    assert sorted(zip(pts[own], cells[own])) == sorted(zip(*real(mesh, circle, trees[0])))
+    np.testing.assert_allclose(got, quadratic(circle.T).T, rtol=1e-10, atol=1e-12)
 
 
 def test_probe_points_are_checked():
