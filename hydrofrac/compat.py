@@ -164,18 +164,47 @@ def _with_ghosts(owner, rows, other, nparts):
     return AdjacencyList_int32(rank[order].astype(np.int32), np.r_[0, np.cumsum(lengths)].astype(np.int32))
 
 
-def mesh_from_local_arrays(comm, x, cells, cell_tag, facets, facet_values, gdim=2):
+def _owners_partition(owners):
+    """A partition that sends each cell this rank passes to ``create_mesh`` to the rank
+    ``owners`` gives it (in the order passed); with ``ghosting`` it also goes to the ranks of its
+    facet neighbours, whose owners are asked of the ranks that passed them."""
+    def partition(comm, nparts, graph, ghosting):
+        from dolfinx.cpp.graph import AdjacencyList_int32
+        n = graph.num_nodes
+        owner = np.asarray(owners, dtype=np.int32).reshape(-1)
+        if owner.size != n:
+            raise RuntimeError(f"{owner.size} owners for {n} cells")
+        if not ghosting or nparts == 1:
+            return AdjacencyList_int32(owner, np.arange(n + 1, dtype=np.int32))
+        start = np.cumsum([0] + comm.allgather(n))
+        nbr = np.asarray(graph.array, dtype=np.int64)
+        rows = np.repeat(np.arange(n), np.diff(np.asarray(graph.offsets)))
+        src = np.searchsorted(start, nbr, side="right") - 1
+        want = [np.unique(nbr[src == r]) - start[r] for r in range(comm.size)]
+        answers = comm.alltoall([owner[a] for a in comm.alltoall(want)])
+        other = np.empty(nbr.size, dtype=np.int32)
+        for r in range(comm.size):
+            k = src == r
+            other[k] = answers[r][np.searchsorted(want[r], nbr[k] - start[r])]
+        return _with_ghosts(owner, rows, other, nparts)
+    return partition
+
+
+def mesh_from_local_arrays(comm, x, cells, cell_tag, facets, facet_values, gdim=2, owners=None):
     """A triangle mesh whose parts every rank holds -> (mesh, cell_tags, facet_tags): ``x``
     (n, >= gdim) this rank's block of nodes (the global index of row i is i plus the rows of the
-    ranks before), ``cells`` (m, 3) global node indices of the cells this rank will own (no
-    cell moves: :func:`_keep_partition`), ``facets`` (k, 2) global node pairs tagged
-    ``facet_values`` (k,), on any rank (0.9: ``create_mesh`` takes the partitioner and the
-    element)."""
+    ranks before), ``cells`` (m, 3) global node indices of this rank's cells, ``facets`` (k, 2)
+    global node pairs tagged ``facet_values`` (k,), on any rank.  ``owners`` (m,): the rank each
+    cell goes to (:func:`_owners_partition`); None on every rank: no cell moves
+    (:func:`_keep_partition`).  (0.9: ``create_mesh`` takes the partitioner and the element.)"""
     x = np.asarray(x, dtype=float)
     x = np.ascontiguousarray(x.reshape(-1, x.shape[-1] if x.size else gdim)[:, :gdim])
+    moved = comm.allreduce(owners is not None, op=MPI.LOR)
+    if moved and owners is None:
+        raise ValueError("mesh_from_local_arrays: owners given on some ranks only; give them on every rank")
     return _mesh_and_tags(comm, np.asarray(cells, dtype=np.int64).reshape(-1, 3), x, cell_tag,
                           np.asarray(facets, np.int64).reshape(-1, 2), np.asarray(facet_values, np.int32),
-                          _keep_partition, gdim)
+                          _owners_partition(owners) if moved else _keep_partition, gdim)
 
 
 def mesh_inputs(mesh, facet_tags):

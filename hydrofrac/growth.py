@@ -1020,6 +1020,7 @@ class GrowthDriver:
         if kinds is None or not getattr(self.build, "local", False):
             return {}
         return {"local_remeshes": kinds["patch"], "patches_retried": kinds.get("retried", 0),
+                "rebalanced": kinds.get("rebalanced", 0),
                 "full_remesh_fallbacks": kinds["full_fallback"], "fallback_reasons": dict(self.build.fallbacks)}
 
     def _fingerprint(self):

@@ -257,6 +257,7 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
             fm = problem.fracture_mesh
             rebuild.kinds["patch" if fm.remesh == "patch" else "full_fallback"] += 1
             rebuild.kinds["retried"] = rebuild.kinds.get("retried", 0) + int(fm.retried)
+            rebuild.kinds["rebalanced"] = rebuild.kinds.get("rebalanced", 0) + int(fm.rebalanced)
             if fm.fallback:
                 rebuild.fallbacks[fm.fallback] = rebuild.fallbacks.get(fm.fallback, 0) + 1
         return problem
@@ -283,7 +284,7 @@ def growth_driver(desc: Wellbore, comm=MPI.COMM_WORLD):
         rebuild.kinds.update(state["kinds"])
         rebuild.fallbacks.update(state["fallbacks"])
 
-    rebuild.kinds = {"patch": 0, "full_fallback": 0, "retried": 0}
+    rebuild.kinds = {"patch": 0, "full_fallback": 0, "retried": 0, "rebalanced": 0}
     rebuild.fallbacks = {}
     rebuild.mesh_state, rebuild.restore_mesh = mesh_state, restore_mesh
     rebuild.local = g.remesh == "patch"

@@ -117,6 +117,8 @@ class FractureMesh:
     region_cells: int = 0
     #: a local remesh made a second time with a larger radius (its first patch had a smaller cell)
     retried: bool = False
+    #: a local remesh that spread the cells over the ranks again (meshes/patch.py, REBALANCE_TOLERANCE)
+    rebalanced: bool = False
 
 
 def perforation_points(domain: Domain, perf: Perforation):
@@ -477,7 +479,8 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
         if why is None:
             mesh, ct, ft = patch.build(comm, local, ROCK)
             return FractureMesh(mesh, ct, ft, **tags, arrays=local, remesh="patch", patch_cells=n_patch,
-                                region_cells=stats["region_cells"], retried=retried)
+                                region_cells=stats["region_cells"], retried=retried,
+                                rebalanced=stats["rebalanced"])
         fallback = why
         if shrinks:  # (the full mesh is made already; its arrays live on rank 0)
             mesh, ct, ft = distribute(comm, full, ROCK)

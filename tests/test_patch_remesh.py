@@ -99,7 +99,8 @@ def extension_changes_only_the_patch(comm):
             length = np.linalg.norm(a.nodes[e[:, 0]] - a.nodes[e[:, 1]], axis=1).sum()
             assert length == pytest.approx(0.1 + np.hypot(0.1, 0.02), rel=1e-12)
     kept = comm.bcast(kept, root=0)
-    # the fields outside the patch are copied bit for bit (a kept cell stays on its rank)
+    # the fields outside the patch are copied bit for bit: on the same rank, or (where the remesh
+    # spread the cells over the ranks again) on another
     old, new = solver_on(full), solver_on(patched)
     old.set_initial_state(smooth)
     transfer_fields(old, new)
@@ -107,13 +108,15 @@ def extension_changes_only_the_patch(comm):
     dofs_old, dofs_new = compat.cell_dofs(old.V), compat.cell_dofs(new.V)
     U0, U1 = old.local_array().reshape(-1, 5), new.local_array().reshape(-1, 5)
     n0, n1 = compat.num_cells_local(full.mesh), compat.num_cells_local(patched.mesh)
-    where = {tuple(sorted(map(tuple, v))): c for c, v in enumerate(old.geometry.vertices[:n0])}
+    mine = [(tuple(sorted(map(tuple, v))), U0[dofs_old[c]]) for c, v in enumerate(old.geometry.vertices[:n0])]
+    where = dict(mine) if not patched.rebalanced else {k: u for part in comm.allgather(mine) for k, u in part}
     for c, v in enumerate(new.geometry.vertices[:n1]):
-        o = where.get(tuple(sorted(map(tuple, v))))
-        if o is not None:
-            assert sorted(map(tuple, U1[dofs_new[c]])) == sorted(map(tuple, U0[dofs_old[o]]))
+        u = where.get(tuple(sorted(map(tuple, v))))
+        if u is not None:
+            assert sorted(map(tuple, U1[dofs_new[c]])) == sorted(map(tuple, u))
             same += 1
     assert comm.allreduce(same) == kept
+    return patched
 
 
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial")
@@ -122,8 +125,59 @@ def test_an_extension_changes_only_the_patch():
 
 
 @pytest.mark.mpi
-def test_an_extension_changes_only_the_patch_on_2_ranks():
-    extension_changes_only_the_patch(MPI.COMM_WORLD)
+def test_an_extension_changes_only_the_patch_on_2_ranks(monkeypatch):
+    from hydrofrac.meshes import patch
+    monkeypatch.setattr(patch, "REBALANCE_TOLERANCE", np.inf)  # every kept cell stays on its rank
+    assert not extension_changes_only_the_patch(MPI.COMM_WORLD).rebalanced
+
+
+@pytest.mark.mpi
+def test_a_local_remesh_spreads_the_cells_again(monkeypatch):
+    """Patch cells go to the ranks whose cells they replace, so the parts drift apart as cracks
+    grow on some ranks; past REBALANCE_TOLERANCE a local remesh spreads the cells again
+    (:func:`balanced_owners`): every rank then carries the same weight (cells, and
+    CRACK_FACET_WEIGHT per crack facet of a cell) within one cell's, the mesh is the one the
+    patch makes (cell for cell), and the kept cells' fields still move bit for bit, some to
+    another rank (:func:`extension_changes_only_the_patch`)."""
+    from hydrofrac.meshes import patch
+    comm = MPI.COMM_WORLD
+    monkeypatch.setattr(patch, "REBALANCE_TOLERANCE", -1.0)  # any remesh spreads them
+    fm = extension_changes_only_the_patch(comm)
+    assert fm.rebalanced and fm.arrays.owners is not None
+    # what every rank owns now: the cells the owners sent it
+    n = compat.num_cells_local(fm.mesh)
+    sent = np.zeros(comm.size, np.int64)
+    comm.Allreduce(np.bincount(fm.arrays.owners, minlength=comm.size).astype(np.int64), sent)
+    assert n == sent[comm.rank]
+    # the weights of the owned cells, from the mesh itself
+    a = fm.arrays
+    cells = comm.allgather((a.cells, a.owners, a.facets[np.isin(a.values, [NATURAL, PATH])]))
+    crack = _edge_key(np.concatenate([c[2] for c in cells]))
+    allc = np.concatenate([c[0] for c in cells])
+    owner = np.concatenate([c[1] for c in cells])
+    e = np.concatenate([allc[:, [0, 1]], allc[:, [1, 2]], allc[:, [2, 0]]])
+    w = 1 + patch.CRACK_FACET_WEIGHT * np.isin(_edge_key(e), crack).reshape(3, -1).sum(axis=0)
+    load = np.bincount(owner, weights=w, minlength=comm.size)
+    assert load.max() - load.min() <= w.max()
+    assert comm.allreduce(n) == len(allc)
+
+
+def test_balanced_owners_split_the_curve_evenly_whoever_holds_the_cells():
+    """Distinct centroids: the owners are a function of the cells alone (not of the rank that
+    holds them), each part carries the same weight within the largest cell's, and the parts
+    follow the Z-order curve (each part's cells are a run of it)."""
+    from hydrofrac.meshes.patch import _morton, balanced_owners
+    comm = MPI.COMM_SELF
+    rng = np.random.default_rng(3)
+    c = rng.uniform(-2, 3, size=(1000, 2))
+    w = rng.integers(1, 6, size=1000)
+    own = balanced_owners(comm, c, 4, weights=w)
+    perm = rng.permutation(1000)
+    assert np.array_equal(balanced_owners(comm, c[perm], 4, weights=w[perm]), own[perm])
+    load = np.bincount(own, weights=w, minlength=4)
+    assert load.max() - load.min() <= 2 * w.max()
+    key = _morton(np.floor((c - c.min(axis=0)) / (c.max(axis=0) - c.min(axis=0)).max() * 65535))
+    assert np.all(np.diff(own[np.argsort(key)]) >= 0)
 
 
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial: rank 0's arrays")
