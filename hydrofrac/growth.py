@@ -913,7 +913,7 @@ class GrowthDriver:
             phi = np.arctan2(d0[1], d0[0]) + th
             d = np.array([np.cos(phi), np.sin(phi)])
             new_point = np.round(point + self.da * d, 9)
-            if self.inside is not None and not self.inside(new_point):
+            if (self.inside is not None and not self.inside(new_point)) or self._runs_along(point, d):
                 self.arrested[i] = (point, _)
                 continue
             j = self._new_tip(point, d)
@@ -923,6 +923,27 @@ class GrowthDriver:
             self._extend(solver, j, new_point, th, smax)
             out[i] = j
         return out
+
+    def _runs_along(self, p, d):
+        """Whether a segment leaving ``p`` along ``d`` leaves within ``params.edge_margin`` of a
+        crack through ``p``: one with a vertex there (a tip arrested on a crack moves onto a
+        vertex of it within ``SNAP * da``, where the crack may turn, so the far side of one of
+        its segments can hold the other's direction), or a segment through it.  Such a segment
+        would lie along that crack (Gmsh cannot mesh two cracks on one line)."""
+        cos_min = np.cos(np.radians(self.params.edge_margin))
+        tol = 1e-7  # (points are snapped to 1 nm)
+        for line in list(self.obstacles) + [np.asarray(q, float) for q in self.paths if len(q) > 1]:
+            a, e = line[:-1], np.diff(line, axis=0)
+            ee = np.maximum((e * e).sum(axis=1), 1e-300)
+            u = np.clip(((p - a) * e).sum(axis=1) / ee, 0.0, 1.0)
+            through = np.flatnonzero(np.linalg.norm(a + u[:, None] * e - p, axis=1) <= tol)
+            for k in through:  # the directions from p along the crack: to the segment's ends
+                for q in (a[k], a[k] + e[k]):
+                    r = q - p
+                    n = np.linalg.norm(r)
+                    if n > tol and float(r @ d) >= cos_min * n:
+                        return True
+        return False
 
     def current_speeds(self):
         """Each tip's current speed [m/s]: that of its last extension (None before its second).

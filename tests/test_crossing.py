@@ -170,3 +170,26 @@ def test_a_tip_meets_a_crack_at_its_vertex_when_near_it():
     d = driver(inside=lambda p: p[1] < 0.04)
     d._extend(NS(t=1e-3), 0, np.array([0.2 + da, near]), 0.0, 2e6)
     assert len(d.paths[0]) == 2 and not d.tips[0].active and 0 not in d.arrested
+
+
+@pytest.mark.parametrize("angle, crosses", [(45.0, False), (47.0, False), (-30.0, True), (60.0, True)])
+def test_a_crossing_does_not_run_along_the_crack_it_crosses(angle, crosses):
+    """A tip arrested on a crack sits on a vertex of it where it met the crack near one
+    (:meth:`GrowthDriver._at_vertex`); the crack may turn there, so the far side of one of its
+    segments can hold the direction of the other.  A crossing along that direction (within
+    edge_margin, 5°) would lie on the crack (the full-size re-fracture stopped there: "path 4
+    and path 15 overlap"), so the tip stays arrested; other directions cross."""
+    from types import SimpleNamespace as NS
+    other = np.array([[0.3, -1.0], [0.3, 0.0], [0.5, 0.2]])  # turns by 45° at (0.3, 0)
+    d = GrowthDriver(lambda polylines: NS(), [Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0]))],
+                     GrowthParams(r=0.1), da=0.1, threshold=1.0, tags=[300], obstacles=[other])
+    p = np.array([0.3, 0.0])
+    d.paths[0] = [np.array([0.0, 0.0]), p.copy()]
+    d.tips[0].point, d.tips[0].active = p.copy(), False
+    d.arrested[0] = (p.copy(), np.array([0.0, 1.0]))
+    theta = np.radians(np.linspace(-85.0, 85.0, 121))
+    d.far_side_profile = lambda solver, i: (theta, 2.0 * np.cos(theta - np.radians(angle)))
+    out = d._cross(NS(t=1e-3), [True])
+    assert (0 in out) == crosses and (0 in d.arrested) != crosses
+    if crosses:
+        assert np.degrees(np.arctan2(*d.tips[out[0]].direction[::-1])) == pytest.approx(angle, abs=0.5)
