@@ -592,7 +592,7 @@ class MatrixFreeOperator:
         self.absdet = np.ascontiguousarray(np.abs(g.detJ))
         self.Minv_ref = np.ascontiguousarray(solver.Mref_inv, dtype=float)
         self.invdet = 1.0 / self.absdet
-        B = np.linalg.inv(solver.material_blocks)  # per cell, unscaled
+        B = solver.material_blocks_inv  # per cell, unscaled
         if np.any(B[:, :2, 2:]) or np.any(B[:, 2:, :2]) or np.any(B[:, 0, 1]) or np.any(B[:, 1, 0]):
             raise RuntimeError("the matrix-free kernel expects a material block diag(1/rho, 1/rho) + stiffness "
                                "(isotropic density); use operator='assembled' for other materials")

@@ -459,19 +459,23 @@ class Solver:
         (s_xx, s_yy, s_xy) with the factor 2 of the shear term in C^{-1} sigma : tau.
         """
         nloc = compat.num_cells_local(self.mesh)
-        kappa = plane_strain_kappa(self.lam_cell, self.mu_cell)
-        B = np.zeros((self.lam_cell.size, 5, 5))
-        B[:, 0, 0] = B[:, 1, 1] = self.rho_cell
-        c = 1.0 / (2 * self.mu_cell)
+        # one block per material, then per cell (the same values as cell by cell)
+        rho, lam, mu = (np.array([getattr(m, k) for m in self.materials], dtype=float) for k in ("rho", "lam", "mu"))
+        kappa = plane_strain_kappa(lam, mu)
+        B = np.zeros((len(self.materials), 5, 5))
+        B[:, 0, 0] = B[:, 1, 1] = rho
+        c = 1.0 / (2 * mu)
         B[:, 2, 2] = B[:, 3, 3] = c * (1 - kappa)
         B[:, 2, 3] = B[:, 3, 2] = -c * kappa
         B[:, 4, 4] = 2 * c
-        self.material_blocks = np.ascontiguousarray(B)  # per cell: rho for v, compliance for sigma
+        which = np.maximum(self.cell_material, 0)
+        self.material_blocks = np.ascontiguousarray(B[which])  # per cell: rho for v, compliance for sigma
+        self.material_blocks_inv = np.ascontiguousarray(np.linalg.inv(B)[which])
         self.Mref_inv = np.ascontiguousarray(np.linalg.inv(self.ref.mass()))
         absdet = np.abs(self.geometry.detJ)
         self._absdet_own = absdet[:nloc].copy()  # for M (built on first use)
         # M_c^{-1} = Mref_inv kron Binv_scaled[c] (all cells incl. ghosts), for cell-local kernels
-        self.Binv_scaled = np.ascontiguousarray(np.linalg.inv(B) / absdet[:, None, None])
+        self.Binv_scaled = np.ascontiguousarray(self.material_blocks_inv / absdet[:, None, None])
 
     def _inverse_mass(self):
         """Block-diagonal M^{-1} in closed form: per owned cell (M_ref^{-1} kron B_c^{-1}) / |det J|."""
