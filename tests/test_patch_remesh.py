@@ -160,6 +160,15 @@ def test_a_local_remesh_spreads_the_cells_again(monkeypatch):
     load = np.bincount(owner, weights=w, minlength=comm.size)
     assert load.max() - load.min() <= w.max()
     assert comm.allreduce(n) == len(allc)
+    # a checkpoint keeps the owners: the mesh made again from it has every cell on the same rank
+    from hydrofrac.meshes.fractures import ROCK as rock
+    again = patch.arrays_from_state(json.loads(json.dumps(patch.arrays_state(fm.arrays))))
+    mesh, _, _ = patch.build(comm, again, rock)
+
+    def owned(m):
+        v = compat.cell_vertex_coords(m)[:compat.num_cells_local(m)]
+        return sorted(tuple(sorted(map(tuple, c))) for c in v)
+    assert owned(mesh) == owned(fm.mesh)
 
 
 def test_balanced_owners_split_the_curve_evenly_whoever_holds_the_cells():
