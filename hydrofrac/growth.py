@@ -16,6 +16,7 @@ paths, has Gmsh remesh the scene and moves fields and interface state to the new
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -786,7 +787,7 @@ class GrowthDriver:
             # keep the driver at the last good geometry (the one a checkpoint of the last good
             # state belongs to; with adaptive meshes, the levels before this check); the failing
             # geometry is in the exception's message and files
-            self.restore_state(before_state)
+            self._restore_before_check(before_state)
             raise
         self.count += 1
         return self._adopt(problem, new)
@@ -1044,30 +1045,34 @@ class GrowthDriver:
                 "rebalanced": kinds.get("rebalanced", 0),
                 "full_remesh_fallbacks": kinds["full_fallback"], "fallback_reasons": dict(self.build.fallbacks)}
 
-    def _fingerprint(self):
-        """What :meth:`checkpoint_state` (without the mesh) depends on, cheaply: its lists only
-        grow (their lengths), a path only by new points (its last one), and the tips and arrest
-        points change in place (all of them)."""
-        return (self.count, len(self.events), len(self.modes), len(self.joined), len(self.nucleations),
-                len(self.tree), len(self.meshes), tuple(self.tags),
-                tuple((len(p),) + (tuple(np.asarray(p[-1]).tolist()) if len(p) else ()) for p in self.paths),
-                tuple(tuple(np.asarray(t.point).tolist()) + tuple(np.asarray(t.direction).tolist()) + (bool(t.active),)
-                      for t in self.tips),
-                tuple((i,) + tuple(np.asarray(p).tolist()) + tuple(np.asarray(e).tolist())
-                      for i, (p, e) in sorted(self.arrested.items())))
+    #: the attributes :meth:`checkpoint_state` reads (the mesh and adaptive levels aside)
+    _STATE = ("paths", "tags", "tips", "nucleations", "events", "modes", "joined", "tree", "arrested", "count",
+              "meshes")
 
     def _state_before_check(self):
-        """:meth:`checkpoint_state` without the mesh, for a check to fall back to: the text of
-        the last check's while the state has not changed since (a check without growth changes
-        nothing; the text grows with the run, 3 ms per check at the end of the full-size
-        re-fracture).  With adaptive meshes, always made anew (their levels are state too)."""
+        """What a check falls back to when its remesh fails (:meth:`_restore_before_check`): the
+        state's lists as shallow copies (their items are never changed in place: the lists only
+        grow, and a tip or arrest point changes by a new value), the tips as new Tips.  O(state)
+        pointer copies, not the checkpoint's text (that grew to 3 ms per check at the end of the
+        full-size re-fracture).  With adaptive meshes, the checkpoint's text (their levels are
+        state too)."""
         if self.adapt is not None:
             return self.checkpoint_state(with_mesh=False)
-        fp = self._fingerprint()
-        cached = getattr(self, "_before_check", None)
-        if cached is None or cached[0] != fp:
-            cached = self._before_check = (fp, self.checkpoint_state(with_mesh=False))
-        return cached[1]
+        snap = {k: copy.copy(getattr(self, k)) for k in self._STATE}
+        snap["paths"] = [list(p) for p in self.paths]
+        snap["tips"] = [Tip(np.array(t.point, float), np.array(t.direction, float), bool(t.active))
+                        for t in self.tips]
+        return snap
+
+    def _restore_before_check(self, snap):
+        """Set the state of :meth:`_state_before_check`."""
+        if isinstance(snap, str):
+            return self.restore_state(snap)
+        self._speeds = None  # (the cache of current_speeds)
+        for k in self._STATE:
+            setattr(self, k, copy.copy(snap[k]))
+        self.paths = [list(p) for p in snap["paths"]]
+        self.tips = [Tip(t.point.copy(), t.direction.copy(), t.active) for t in snap["tips"]]
 
     def checkpoint_state(self, with_mesh=True):
         """The geometry state (JSON text): paths, tips, events, joins, remesh count, and with
@@ -1099,7 +1104,7 @@ class GrowthDriver:
         if len(d["tips"]) != len(tags) or tags[:len(self.tags)] != self.tags[:len(tags)]:
             raise ValueError(f"checkpoint has {len(d['tips'])} crack tips with tags {tags}, this run's tags are "
                              f"{self.tags}: restart with the same growth options")
-        self._speeds = self._before_check = None  # (the caches of current_speeds and _state_before_check)
+        self._speeds = None  # (the cache of current_speeds)
         self.paths = [[np.asarray(q, float) for q in p] for p in d["paths"]]
         self.tags = list(tags)
         self.tips = [Tip(np.asarray(st["point"]), np.asarray(st["direction"]), st["active"]) for st in d["tips"]]

@@ -191,40 +191,46 @@ def test_tip_speeds_and_the_rayleigh_speed():
     assert ROCK.cR == pytest.approx(1663.2, abs=0.1)
 
 
-def test_state_before_a_check_follows_every_change():
-    """The state a check falls back to (kept between checks while nothing changes) is always
-    the driver's current state: after an extension, a tip's move or stop, an arrest point's
-    move, and unchanged (the same text) when nothing changed; the cached current speeds too."""
+def test_a_failed_check_falls_back_to_the_state_before_it():
+    """A check whose remesh fails falls back to the state before it (the last good geometry,
+    the one a checkpoint of the last good state belongs to): after extensions, a new tip, a
+    tip's move or stop, an arrest and an arrest point's move, new events, modes, joins,
+    nucleations, tree entries and a remesh count, the state made again is the one before, to
+    the checkpoint's text; the cached current speeds too."""
     from hydrofrac.growth import GrowthDriver, Tip
     d = GrowthDriver(lambda polylines: SimpleNamespace(), [Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0])),
                                                           Tip(np.array([0.0, 1.0]), np.array([0.0, 1.0]))],
                      GrowthParams(r=0.1), da=0.2, threshold=1.0, tags=[300, 301])
-
-    def same():
-        got = d._state_before_check()
-        assert got == d.checkpoint_state(with_mesh=False)
-        return got
-
-    first = same()
-    assert d._state_before_check() is first  # nothing changed: the kept text
     d.paths[0].append(np.array([0.2, 0.0]))
     d.events.append((1e-4, 0, 0.0, 1.0))
-    assert d.current_speeds() == [None, None]
-    second = same()
-    assert second != first
+    d.arrested[1] = (np.array([0.0, 1.2]), np.array([1.0, 0.0]))
+    text, speeds = d.checkpoint_state(with_mesh=False), d.current_speeds()
+    before = d._state_before_check()
+    # what a check changes
     d.paths[0].append(np.array([0.4, 0.0]))
     d.events.append((2e-4, 0, 0.0, 1.0))
-    assert d.current_speeds() == [pytest.approx(2000.0), None]
-    d.tips[1].point = np.array([0.0, 1.2])
-    assert same() != second
+    d.modes.append((10.0, True))
+    assert d.current_speeds() != speeds
+    d.tips[0].point = np.array([0.4, 0.0])
     d.tips[1].active = False
-    third = same()
-    d.arrested[1] = (np.array([0.0, 1.2]), np.array([1.0, 0.0]))
-    fourth = same()
-    d.arrested[1] = (np.array([0.0, 1.3]), np.array([1.0, 0.0]))  # moved in place (a crossing check)
-    assert len({third, fourth, same()}) == 3
-    d.restore_state(first)
-    assert same() == first and d.current_speeds() == [None, None]
+    d.arrested[1] = (np.array([0.0, 1.3]), np.array([1.0, 0.0]))
+    d.arrested[0] = (np.array([0.4, 0.0]), np.array([0.0, 1.0]))
+    d.tips.append(Tip(np.array([0.4, 0.0]), np.array([0.0, 1.0])))
+    d.paths.append([np.array([0.4, 0.0])])
+    d.tags.append(302)
+    d.joined.append((2e-4, 0, np.array([0.4, 0.0])))
+    d.nucleations.append((2e-4, np.array([1.0, 1.0]), 0.5, 1e6))
+    d.tree.append({"event": "crossing", "t": 2e-4, "parent": 0, "child": 2})
+    d.count += 1
+    d.meshes.append((2e-4, 100, 1e-7))
+    assert d.checkpoint_state(with_mesh=False) != text
+    d._restore_before_check(before)
+    assert d.checkpoint_state(with_mesh=False) == text and d.current_speeds() == speeds
+    # the fall-back state is not the driver's: a second fall-back gives it again
+    d.paths[0].append(np.array([0.6, 0.0]))
+    d.tips[0].point[0] = 9.0
+    d._restore_before_check(before)
+    assert d.checkpoint_state(with_mesh=False) == text
 
 
 def nucleation_run(sigma0, beta, steps=12, comm=MPI.COMM_WORLD):
