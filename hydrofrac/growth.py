@@ -310,13 +310,7 @@ def cod_direction(iface, tag, tip, params: GrowthParams):
     of the maximum-s̆ criterion of the singular field (:func:`near_tip_direction`, with
     ``params.beta``), times ``params.cod_relax``.  None if the crack has no points there or
     is not open."""
-    return cod_directions(iface, [(tag, tip)], params)[0]
-
-
-def cod_directions(iface, tips, params: GrowthParams):
-    """:func:`cod_direction` of several (tag, tip) pairs, with one reduction for all
-    (collective)."""
-    return [cod_angle(tot, params) for tot in cod_sums(iface, tips, params)]
+    return cod_angle(cod_sums(iface, [(tag, tip)], params)[0], params)
 
 
 def cod_angle(tot, params: GrowthParams):
@@ -728,7 +722,7 @@ class GrowthDriver:
                 last[i] = t
             ready = [r and (i not in last or solver.t - last[i] >= self.da / self.max_speed * (1 - 1e-12))
                      for i, r in enumerate(ready)]
-        before_state = self._state_before_check()  # (restore_state takes no mesh)
+        before_state = self._state_before_check()  # (the fall-back if the remesh fails)
         before = [(t.point.copy(), t.direction.copy()) for t in self.tips]
         speeds = self.current_speeds()
         branches = {}

@@ -400,8 +400,9 @@ def _inside(points, nodes, tris):
 #: (docs/benchmarks.md, "A patch may not shorten the time step")
 CELL_FLOOR_TOLERANCE = 0.02
 
-#: a patch that makes a cell smaller than the old mesh's smallest is made again with this many
-#: times the radius before a full remesh decides (meshes/fractures.py, ``fracture_mesh``)
+#: a patch that cannot be made, or makes a cell smaller than the old mesh's smallest, is made
+#: again with this many times the radius before a full remesh decides (meshes/fractures.py,
+#: ``fracture_mesh``)
 PATCH_RETRY_RADIUS = 2.0
 
 
