@@ -277,6 +277,12 @@ def new_segments(old: Dict[int, np.ndarray], new: Dict[int, np.ndarray]):
     return [(t, np.array(a), np.array(b)) for t, a, b in added], bool(o - n)
 
 
+def _edges(tris):
+    """The three edges (0-1, 1-2, 2-0) of every triangle of ``tris`` (m, 3), edge by edge:
+    (3 m, 2), the m first edges first."""
+    return np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+
+
 def _edge_key(e):
     e = np.sort(e, axis=1)
     return e[:, 0] * (1 << 31) + e[:, 1]
@@ -428,7 +434,7 @@ def _patch(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], added, radiu
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
     dist = cKDTree(ends).query(cent)[0]
-    e = np.concatenate([old.tris[:, [0, 1]], old.tris[:, [1, 2]], old.tris[:, [2, 0]]])
+    e = _edges(old.tris)
     keys = _edge_key(e)
     nt = old.tris.shape[0]
     tri_of = np.tile(np.arange(nt), 3)
@@ -458,7 +464,7 @@ def _patch(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], added, radiu
         return (*none, "a new crack segment leaves the patch")
     for _ in range(4):  # the triangles at a vertex where the boundary touches itself, and islands
         # of old triangles inside the patch, join it (a patch with no pinch and no hole)
-        pe = np.concatenate([ptris[:, [0, 1]], ptris[:, [1, 2]], ptris[:, [2, 0]]])
+        pe = _edges(ptris)
         uk, first, counts = np.unique(_edge_key(pe), return_index=True, return_counts=True)
         bedges = pe[first[counts == 1]]
         loops = _loops(bedges)
@@ -479,7 +485,7 @@ def _patch(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], added, radiu
             break  # several pieces, no island
         near |= inside
         ptris = old.tris[near]
-    pe = np.concatenate([ptris[:, [0, 1]], ptris[:, [1, 2]], ptris[:, [2, 0]]])
+    pe = _edges(ptris)
     uk, first, counts = np.unique(_edge_key(pe), return_index=True, return_counts=True)
     loops = _loops(pe[first[counts == 1]])
     if loops is None:
@@ -571,7 +577,7 @@ def _patch(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], added, radiu
     if lost:
         return (*none, f"crack(s) {lost} have no facet in the patch mesh")
     # every crack facet of the patch must be an edge of its triangles (embedded in the surface)
-    pk = _edge_key(np.concatenate([patch.tris[:, [0, 1]], patch.tris[:, [1, 2]], patch.tris[:, [2, 0]]]))
+    pk = _edge_key(_edges(patch.tris))
     if any(not np.isin(_edge_key(e), pk).all() for e in patch.lines.values()):
         return (*none, "a crack is not embedded in the patch mesh")
 
@@ -588,7 +594,7 @@ def _patch(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], added, radiu
     nodes = np.concatenate([old.nodes, patch.nodes[fresh]])
     # the patch must meet the kept mesh edge for edge: its boundary is the old patch boundary
     new_t = index[patch.tris]
-    ne = np.concatenate([new_t[:, [0, 1]], new_t[:, [1, 2]], new_t[:, [2, 0]]])
+    ne = _edges(new_t)
     nk, nc = np.unique(_edge_key(ne), return_counts=True)
     if not np.array_equal(np.sort(nk[nc == 1]), np.sort(uk[counts == 1])):
         return (*none, "the patch mesh does not meet the kept mesh edge for edge")
@@ -654,7 +660,7 @@ def patch_local(comm, gmsh, mesh, facet_tags, added, polylines, radius: float, s
     # grow on some ranks more than on others: past REBALANCE_TOLERANCE they are spread again.
     # A cell next to a crack facet weighs more: the facet's interface work.
     crack = np.isin(local.values, list(crack_tags or ()))
-    edges = np.concatenate([local.cells[:, [0, 1]], local.cells[:, [1, 2]], local.cells[:, [2, 0]]])
+    edges = _edges(local.cells)
     weights = 1 + CRACK_FACET_WEIGHT * np.isin(_edge_key(edges), _edge_key(local.facets[crack])).reshape(3, -1).sum(0)
     loads = np.array(comm.allgather(int(weights.sum())))
     rebalanced = bool(loads.max() > (1 + REBALANCE_TOLERANCE) * loads.mean())

@@ -20,7 +20,7 @@ from hydrofrac import ROCK, compat
 from hydrofrac.boundary import Absorbing
 from hydrofrac.interface import Crack, Interface, crack_facet_indices
 from hydrofrac.meshes.fractures import NATURAL, OUTER, PATH, Domain, Fracture, fracture_mesh
-from hydrofrac.meshes.patch import SizeLaw, _edge_key, _in_polygon, _size_callback, gathered
+from hydrofrac.meshes.patch import SizeLaw, _edge_key, _edges, _in_polygon, _size_callback, gathered
 from hydrofrac.network import CrackLine, CrackNetwork
 from hydrofrac.solver import Solver
 from hydrofrac.transfer import continue_run, transfer_fields
@@ -53,7 +53,7 @@ def check_arrays(a, area):
     det = (x[:, 1, 0] - x[:, 0, 0]) * (x[:, 2, 1] - x[:, 0, 1]) - (x[:, 1, 1] - x[:, 0, 1]) * (x[:, 2, 0] - x[:, 0, 0])
     assert np.all(np.abs(det) > 0)
     assert 0.5 * np.abs(det).sum() == pytest.approx(area, rel=1e-12)
-    e = np.concatenate([a.tris[:, [0, 1]], a.tris[:, [1, 2]], a.tris[:, [2, 0]]])
+    e = _edges(a.tris)
     _, counts = np.unique(_edge_key(e), return_counts=True)
     assert counts.max() == 2  # no edge in three triangles: conforming
     keys = _edge_key(e)
@@ -155,7 +155,7 @@ def test_a_local_remesh_spreads_the_cells_again(monkeypatch):
     crack = _edge_key(np.concatenate([c[2] for c in cells]))
     allc = np.concatenate([c[0] for c in cells])
     owner = np.concatenate([c[1] for c in cells])
-    e = np.concatenate([allc[:, [0, 1]], allc[:, [1, 2]], allc[:, [2, 0]]])
+    e = _edges(allc)
     w = 1 + patch.CRACK_FACET_WEIGHT * np.isin(_edge_key(e), crack).reshape(3, -1).sum(axis=0)
     load = np.bincount(owner, weights=w, minlength=comm.size)
     assert load.max() - load.min() <= w.max()
