@@ -79,7 +79,7 @@ demo: setup
 	@echo "[demo] summary:   $(DEMO_OUT)/summary.json, history: $(DEMO_OUT)/history.csv"
 
 # the README gallery from the full-size runs of the paper's problems on 2 ranks (the
-# re-fracture takes about 3 minutes here); GALLERY_ARGS="--quick" for the small versions
+# re-fracture takes about 2 minutes here); GALLERY_ARGS="--quick" for the small versions
 GALLERY_RUNS := /tmp/hydrofrac-gallery
 GALLERY_ARGS ?=
 gallery: setup

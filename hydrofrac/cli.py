@@ -131,7 +131,7 @@ def add_pressure_factor_argument(parser, default="connected", why=""):
                              f"so an open crack end takes the load through a closed part (default {default}{why})")
 
 
-def add_growth_arguments(parser, natural_tips=False, branch_speed=math.inf, nucleation_cap=0, remesh="full"):
+def add_growth_arguments(parser, natural_tips=False, branch_speed=math.inf, nucleation_cap=0, remesh="patch"):
     """The free-growth options shared by the wellbore scenarios (intersection, re-fracture):
     ``--growth`` (the default) / ``--premeshed`` and the criterion's parameters, in
     crack-facet sizes h; the network's events default to the scenario's ``natural_tips``,

@@ -8,7 +8,8 @@ interest against the finest run (graded, h = 2.25 cm at the cracks; the scenario
 is 3 cm):
 
 * the intersection time (when the growing crack connects to the natural fracture);
-* the f_p-weighted loaded length of the natural fracture at 1 ms.
+* the f_p-weighted loaded length of the natural fracture at 1 ms;
+* the natural fracture's open area at 1 ms, the integral of its opening max(delta, 0) [m^2].
 
 Adaptive meshes (:mod:`hydrofrac.adapt`; ``intersection.description(adapt=h_fine)``) run the
 same problem with the cracks at twice the fine size, ``h_fine`` only where the indicator flags
@@ -92,21 +93,58 @@ def run_case(h_crack, h_far, h_fine=None):
     acc = mon.accuracy(problem)
     return {"cells": solver.num_cells, "dofs": solver.num_dofs, "steps": solver.step_count, "dt": solver.dt,
             "dof_steps": work, "setup_s": setup, "wall_s": wall, "intersection_time": acc["intersection_time"],
-            "nf_loaded_length": acc["nf_loaded_length_final"], **extra}
+            "nf_loaded_length": acc["nf_loaded_length_final"], "nf_open_area": acc["nf_open_area_final"], **extra}
+
+
+QOIS = ("intersection_time_error", "loaded_length_error", "open_area_error")
+
+
+def equal_error_work(static, key, error):
+    """The work [DOF·steps] a static graded mesh needs for ``|error|`` in ``key``: log |error|
+    against log work, interpolated between the two static meshes that bracket it, or extrapolated
+    on the slope of the two nearest (beyond the finest or the coarsest); nan if the static errors
+    do not fall with the work (no slope) or the error is 0.  ``static``: rows of the graded
+    meshes but the reference, any order."""
+    import numpy as np
+    pts = sorted((r["dof_steps"], abs(r[key])) for r in static if r[key] != 0)
+    if len(pts) < 2 or error == 0:
+        return float("nan")
+    w, e = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
+    k = int(np.clip(np.searchsorted(-e, -np.log(abs(error))), 1, len(pts) - 1))  # e falls along w
+    slope = (e[k] - e[k - 1]) / (w[k] - w[k - 1])
+    if not slope < 0:
+        return float("nan")
+    return float(np.exp(w[k - 1] + (np.log(abs(error)) - e[k - 1]) / slope))
+
+
+def work_ratios(rows):
+    """For every adaptive row and quantity: the static graded mesh's work for the same error
+    (:func:`equal_error_work`) and its ratio to the adaptive work (> 1: adaptive needs less)."""
+    static = [r for r in rows[1:] if r["h_fine"] is None and r["h_far"] > r["h_crack"]]
+    for r in rows:
+        for key in QOIS:
+            name = key.replace("_error", "")
+            if r["h_fine"] is None:
+                r[f"static_work_same_{name}"] = r[f"work_ratio_{name}"] = ""
+                continue
+            w = equal_error_work(static, key, r[key])
+            r[f"static_work_same_{name}"] = w
+            r[f"work_ratio_{name}"] = w / r["dof_steps"]
 
 
 def chart(rows, png):
-    """The two errors (absolute, against the reference) against the work in DOF·steps: the
+    """The three errors (absolute, against the reference) against the work in DOF·steps: the
     static graded meshes, the adaptive ones and the uniform one."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
     groups = [("graded (static)", lambda r: r["h_fine"] is None and r["h_far"] > r["h_crack"], "o-"),
               ("adaptive", lambda r: r["h_fine"] is not None, "s-"),
               ("uniform", lambda r: r["h_far"] == r["h_crack"], "^")]
     for ax, key, unit, scale, title in ((axes[0], "intersection_time_error", "µs", 1e6, "intersection time"),
-                                        (axes[1], "loaded_length_error", "m", 1.0, "loaded length at 1 ms")):
+                                        (axes[1], "loaded_length_error", "m", 1.0, "loaded length at 1 ms"),
+                                        (axes[2], "open_area_error", "mm²", 1e6, "open area at 1 ms")):
         for label, pick, style in groups:
             rs = sorted([r for r in rows[1:] if pick(r)], key=lambda r: r["dof_steps"])
             if rs:
@@ -131,13 +169,16 @@ def main(argv=None):
         if comm.rank == 0:
             print(f"[study] {name}: {r['cells']} cells, {r['dofs']} DOFs, {r['steps']} steps, "
                   f"{r['dof_steps']:.3g} DOF*steps, wall {r['wall_s']:.1f} s, "
-                  f"intersection {r['intersection_time'] * 1e6:.1f} µs, loaded length {r['nf_loaded_length']:.3f} m",
+                  f"intersection {r['intersection_time'] * 1e6:.1f} µs, loaded length {r['nf_loaded_length']:.3f} m, "
+                  f"open area {r['nf_open_area'] * 1e6:.3f} mm²",
                   flush=True)
     ref = rows[0]
     for r in rows:
         r["intersection_time_error"] = r["intersection_time"] - ref["intersection_time"]
         r["loaded_length_error"] = r["nf_loaded_length"] - ref["nf_loaded_length"]
+        r["open_area_error"] = r["nf_open_area"] - ref["nf_open_area"]
         r["ranks"] = comm.size
+    work_ratios(rows)
     if comm.rank == 0:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
@@ -146,8 +187,13 @@ def main(argv=None):
         for r in rows:
             print(f"[study] {r['case']:48s} {r['dof_steps']:9.3g} DOF*steps  wall {r['wall_s']:7.1f} s  "
                   f"intersection error "
-                  f"{r['intersection_time_error'] * 1e6:+6.1f} µs  loaded-length error {r['loaded_length_error']:+.3f} m",
+                  f"{r['intersection_time_error'] * 1e6:+6.1f} µs  loaded-length error {r['loaded_length_error']:+.3f} m  "
+                  f"open-area error {r['open_area_error'] * 1e6:+.3f} mm²",
                   flush=True)
+            if r["h_fine"] is not None:
+                print("[study]   a static graded mesh with the same error needs "
+                      + ", ".join(f"{r['work_ratio_' + k.replace('_error', '')]:.2f}x the work ({k.split('_error')[0]})"
+                                  for k in QOIS), flush=True)
     return rows
 
 

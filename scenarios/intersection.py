@@ -195,6 +195,11 @@ class IntersectionMonitor(Monitor):
         rows = np.array(self.rows)
         out = {"intersection_time": self.t_intersection if self.t_intersection is not None else float("nan"),
                "nf_length": self.nf_length, "nf_loaded_length_final": float(rows[-1, 1])}
+        # the natural fracture's open area at the end, the integral of max(delta, 0) along it [m^2]
+        # (the fluid it could hold per metre of thickness): the study's opening measure
+        iface, nf = problem.interface, self._masks(problem)["nf"]
+        out["nf_open_area_final"] = problem.comm.allreduce(
+            float((np.maximum(iface.state[1][nf], 0.0) * iface.weights[nf]).sum()), op=MPI.SUM)
         nan = float("nan")
         for k in range(2):
             out[f"nf_end{k}_loaded_time"] = self.t_end_loaded[k] if self.t_end_loaded[k] is not None else nan
@@ -270,7 +275,7 @@ def main(argv=None, regularized=None):
     cli.add_pressure_factor_argument(parser)
     # the network evolves (docs/model.md §6): the natural fracture's ends are tips, and fast tips branch
     # local remeshing around the new segments (docs/benchmarks.md, "Remeshing: local patches")
-    cli.add_growth_arguments(parser, natural_tips=True, branch_speed=BRANCH_SPEED, remesh="patch")
+    cli.add_growth_arguments(parser, natural_tips=True, branch_speed=BRANCH_SPEED)
     # The freely grown crack reaches the natural fracture at ~710 µs (full size; ~780 µs at
     # --quick, Δa = 12 cm) and loads it from 775 µs (996 µs): 1.2 ms shows the load front
     # cross the natural fracture (paper fig. 8-9); --quick's 1.1 ms leaves the 50 µs after

@@ -114,12 +114,16 @@ def setup(comm=MPI.COMM_WORLD, record=None, **params):
 #   load returns) first reaches f_p > 0.5, and its distance along the network from
 #   the perforations.
 class RefractureMonitor(Monitor):
-    checkpointed = ("t_reach", "still_loaded", "energy_after_off", "sep_fraction")
+    checkpointed = ("t_reach", "still_loaded", "loaded_before_on", "energy_after_off", "sep_fraction")
 
     def __init__(self, t_off, t_on):
         self.t_off, self.t_on = t_off, t_on
         self.t_reach = None
-        self.still_loaded = None  # facets with f_p > 0.5 when the load returns (never unloaded)
+        # facets with f_p > 0.5 at the last step before the load returns (never unloaded): a
+        # closed facet holds little fluid, so the first step of the returning load may fill the
+        # first facet beyond a perforation, which had unloaded
+        self.loaded_before_on = None
+        self.still_loaded = None  # that record, kept from the first step at or after t_on
         self.energy_after_off = []
         self.sep_fraction = []
 
@@ -129,21 +133,25 @@ class RefractureMonitor(Monitor):
         facet length (a facet of a new segment has no record)."""
         old_if, new_if, comm = old.interface, new.interface, new.comm
         mid = lambda f: 0.5 * (f.va + f.vb)  # noqa: E731
-        still = self.still_loaded if self.still_loaded is not None else np.zeros(old_if.facets.size, bool)
-        parts = comm.allgather((mid(old_if), self.t_reach, still))
+        none = np.zeros(old_if.facets.size, bool)
+        masks = [m if m is not None else none for m in (self.still_loaded, self.loaded_before_on)]
+        parts = comm.allgather((mid(old_if), self.t_reach, *masks))
         P = np.concatenate([p[0] for p in parts]).reshape(-1, 2)
         T = np.concatenate([p[1] for p in parts])
-        K = np.concatenate([p[2] for p in parts]).astype(bool)
+        K = [np.concatenate([p[k] for p in parts]).astype(bool) for k in (2, 3)]
         self.t_reach = np.full(new_if.facets.size, np.inf)
-        kept = np.zeros(new_if.facets.size, bool)
+        kept = [np.zeros(new_if.facets.size, bool) for _ in K]
         if P.size and new_if.facets.size:
             from scipy.spatial import cKDTree
             dist, j = cKDTree(P).query(mid(new_if))
             near = dist <= 0.5 * new_if.length
             self.t_reach[near] = T[j[near]]
-            kept[near] = K[j[near]]
+            for k, m in zip(kept, K):
+                k[near] = m[j[near]]
         if self.still_loaded is not None:
-            self.still_loaded = kept
+            self.still_loaded = kept[0]
+        if self.loaded_before_on is not None:
+            self.loaded_before_on = kept[1]
 
     def __call__(self, problem):
         hyd, iface, comm, t = problem.hydraulics, problem.interface, problem.comm, problem.t
@@ -160,10 +168,12 @@ class RefractureMonitor(Monitor):
         self.sep_fraction.append((t, sep / max(tot, 1e-300), closed / max(tot, 1e-300)))
         if t >= self.t_off:
             self.energy_after_off.append((t, problem.solver.energy.balance_error))
-        if t >= self.t_on:
             loaded = hyd.fp_q.mean(axis=1) > 0.5
+            if t < self.t_on:
+                self.loaded_before_on = loaded
+                return
             if self.still_loaded is None:
-                self.still_loaded = loaded.copy()
+                self.still_loaded = (self.loaded_before_on if self.loaded_before_on is not None else loaded).copy()
             hit = loaded & ~np.isfinite(self.t_reach)
             self.t_reach[hit] = t
 

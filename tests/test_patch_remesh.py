@@ -306,10 +306,10 @@ def test_points_in_a_polygon_as_matplotlib_finds_them():
 
 
 @pytest.mark.parametrize("default, argv, expected", [
-    ("patch", [], "patch"),  # the intersection scripts
+    ("patch", [], "patch"),  # the growth scenarios (intersection, re-fracture)
     ("patch", ["--adapt", "0.03"], "full"),  # adaptive meshes change the size field everywhere
     ("patch", ["--growth-remesh", "full"], "full"),
-    ("full", [], "full"),  # the re-fracture
+    ("full", [], "full"),  # a scenario that chooses full remeshes
     ("full", ["--growth-remesh", "patch"], "patch"),
 ])
 def test_remesh_default_is_the_scenarios_and_full_with_adapt(default, argv, expected):

@@ -328,3 +328,22 @@ def test_time_scheme_study_quick(tmp_path):
         for scheme in st.SCHEMES:
             e = [r["rel_error"] for r in sorted(main, key=lambda r: r["N"]) if r["scheme"] == scheme and r["degree"] == p]
             assert e[0] / e[1] > 2 ** (p + 0.8), (scheme, p, e)
+
+
+def test_mesh_grading_work_for_the_same_error_follows_a_power_law():
+    """The mesh-grading study's equal-error work: on errors that fall as 1/work it recovers the
+    work of any error exactly, between the static meshes and beyond either end, and a work
+    ratio is the static work over the adaptive one; errors that do not fall give no ratio."""
+    from hydrofrac.postprocess.study_mesh_grading import equal_error_work, work_ratios
+    static = [{"dof_steps": w, "e": s * 1e6 / w} for w, s in ((1e6, 1), (1e7, -1), (1e8, 1))]
+    for err, work in ((0.05, 2e7), (-0.3, 10 ** 6.5 / 0.3 * 10 ** -0.5), (1e-3, 1e9), (10.0, 1e5)):
+        assert equal_error_work(static, "e", err) == pytest.approx(work, rel=1e-12)
+    assert np.isnan(equal_error_work([{"dof_steps": 1e6, "e": 1.0}, {"dof_steps": 1e7, "e": 2.0}], "e", 1.5))
+    keys = ("intersection_time_error", "loaded_length_error", "open_area_error")
+    rows = [{"h_fine": None, "h_far": 0.5, "h_crack": 0.02, "dof_steps": 1e9, **dict.fromkeys(keys, 0.0)}]
+    rows += [{"h_fine": None, "h_far": 0.5, "h_crack": 0.03, "dof_steps": w, **dict.fromkeys(keys, 1e6 / w)}
+             for w in (1e6, 1e7, 1e8)]
+    rows.append({"h_fine": 0.03, "h_far": 1.0, "h_crack": 0.06, "dof_steps": 1e7, **dict.fromkeys(keys, 0.01)})
+    work_ratios(rows)
+    assert rows[-1]["work_ratio_open_area"] == pytest.approx(10.0, rel=1e-12)
+    assert rows[1]["work_ratio_intersection_time"] == ""
