@@ -32,6 +32,8 @@ def summary(request, tmp_path_factory):
         assert acc["remeshes"] >= 3 and acc["extensions"] >= 4 * 3, acc
         assert acc["grown_length"] >= 4 * (0.4 - 0.1) - 1e-9, acc
         assert s["remeshing"]["remeshes"] == acc["remeshes"]
+        # the default remesh is a local patch (--growth-remesh full: none)
+        assert acc["local_remeshes"] >= 1, acc
     return s
 
 
