@@ -15,14 +15,18 @@ Adaptive meshes (:mod:`hydrofrac.adapt`; ``intersection.description(adapt=h_fine
 same problem with the cracks at twice the fine size, ``h_fine`` only where the indicator flags
 (crack process zones, bulk jumps above ``wellbore.ADAPT_TOL`` of the peak load), a far
 size of 1 m reached within 0.5 m: the work is counted in DOF·steps summed over the meshes,
-remeshing included in the wall time.
+remeshing included in the wall time.  For each adaptive mesh and quantity the study gives the
+work a static graded mesh needs for the same error, over the adaptive work; the 3 cm and
+4.5 cm graded meshes and the 3 cm adaptive one also run with their sizes 3.3 % apart
+(:data:`ENSEMBLE`), and the same ratios are taken on the ensembles' means.
 
 A third variant, lower p in the far field, is not supported (one p per mesh).
 
     mpirun -n 2 python -m hydrofrac.postprocess.study_mesh_grading [--out DIR]
 
 Writes ``mesh_grading.csv`` and ``mesh_grading.png`` (each error against the work, static
-and adaptive meshes) into ``postprocess/results`` (``--out``).
+and adaptive meshes) and ``mesh_grading_means.csv`` (the ensembles' means and their ratios,
+:data:`ENSEMBLE`) into ``postprocess/results`` (``--out``).
 """
 from __future__ import annotations
 
@@ -45,6 +49,11 @@ CASES = [  # name, h_crack, h_far, adaptive h_fine (None: a static mesh)
     ("adaptive, h = 6 cm where flagged, 12 cm cracks", 0.12, 1.0, 0.06),
 ]
 T_END = 1.0e-3
+#: the meshes run again with every size times these factors (h_crack, and h_fine of an adaptive
+#: mesh; h_far kept): the intersection time's error moves by a factor 2-4 between such
+#: neighbours, so the equal-error ratios are also taken on the means of each ensemble
+ENSEMBLE = {"graded, h = 3 cm (full size)": (29 / 30, 31 / 30), "graded, h = 4.5 cm": (29 / 30, 31 / 30),
+            "adaptive, h = 3 cm where flagged, 6 cm cracks": (29 / 30, 31 / 30)}
 
 
 def adaptive_run(problem, t_end, monitor):
@@ -119,8 +128,9 @@ def equal_error_work(static, key, error):
 
 def work_ratios(rows):
     """For every adaptive row and quantity: the static graded mesh's work for the same error
-    (:func:`equal_error_work`) and its ratio to the adaptive work (> 1: adaptive needs less)."""
-    static = [r for r in rows[1:] if r["h_fine"] is None and r["h_far"] > r["h_crack"]]
+    (:func:`equal_error_work` over the graded rows but the reference and the neighbours of an
+    ensemble) and its ratio to the adaptive work (> 1: adaptive needs less)."""
+    static = [r for r in rows[1:] if r["h_fine"] is None and r["h_far"] > r["h_crack"] and not r.get("group")]
     for r in rows:
         for key in QOIS:
             name = key.replace("_error", "")
@@ -130,6 +140,27 @@ def work_ratios(rows):
             w = equal_error_work(static, key, r[key])
             r[f"static_work_same_{name}"] = w
             r[f"work_ratio_{name}"] = w / r["dof_steps"]
+
+
+def ensemble_means(rows):
+    """One row per ensemble (:data:`ENSEMBLE`: a mesh and its neighbours, ``group`` naming the
+    mesh) and per mesh outside one: the mean work and the mean |error| of each quantity, with
+    the equal-error ratios of the adaptive means against the static graded means
+    (:func:`work_ratios` on them)."""
+    import numpy as np
+    out = [rows[0]]
+    for r in rows[1:]:
+        if r.get("group"):
+            continue
+        members = [r] + [m for m in rows if m.get("group") == r["case"]]
+        mean = {k: r[k] for k in ("case", "h_crack", "h_far", "h_fine")}
+        mean["case"] = f"mean of {len(members)}: {r['case']}" if len(members) > 1 else r["case"]
+        mean["dof_steps"] = float(np.mean([m["dof_steps"] for m in members]))
+        for key in QOIS:
+            mean[key] = float(np.mean([abs(m[key]) for m in members]))
+        out.append(mean)
+    work_ratios(out)
+    return out
 
 
 def chart(rows, png):
@@ -146,9 +177,14 @@ def chart(rows, png):
                                         (axes[1], "loaded_length_error", "m", 1.0, "loaded length at 1 ms"),
                                         (axes[2], "open_area_error", "mm²", 1e6, "open area at 1 ms")):
         for label, pick, style in groups:
-            rs = sorted([r for r in rows[1:] if pick(r)], key=lambda r: r["dof_steps"])
+            rs = sorted([r for r in rows[1:] if pick(r) and not r.get("group")], key=lambda r: r["dof_steps"])
             if rs:
-                ax.plot([r["dof_steps"] for r in rs], [abs(r[key]) * scale for r in rs], style, label=label)
+                line, = ax.plot([r["dof_steps"] for r in rs], [abs(r[key]) * scale for r in rs], style, label=label)
+                nb = [r for r in rows[1:] if pick(r) and r.get("group")]
+                if nb:
+                    ax.plot([r["dof_steps"] for r in nb], [abs(r[key]) * scale for r in nb], style[0],
+                            color=line.get_color(), alpha=0.4, markersize=4,
+                            label=f"{label}, sizes ±3 %")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("work [DOF·steps]")
@@ -163,8 +199,11 @@ def main(argv=None):
     args = study_parser(__doc__).parse_args(argv)
     comm = MPI.COMM_WORLD
     rows = []
-    for name, hc, hf, hfine in CASES:
-        r = {"case": name, "h_crack": hc, "h_far": hf, "h_fine": hfine, **run_case(hc, hf, hfine)}
+    runs = [(name, hc, hf, hfine, "") for name, hc, hf, hfine in CASES]
+    runs += [(f"{name}, sizes x {f:.3f}", hc * f, hf, None if hfine is None else hfine * f, name)
+             for name, hc, hf, hfine in CASES for f in ENSEMBLE.get(name, ())]
+    for name, hc, hf, hfine, group in runs:
+        r = {"case": name, "group": group, "h_crack": hc, "h_far": hf, "h_fine": hfine, **run_case(hc, hf, hfine)}
         rows.append(r)
         if comm.rank == 0:
             print(f"[study] {name}: {r['cells']} cells, {r['dofs']} DOFs, {r['steps']} steps, "
@@ -179,6 +218,7 @@ def main(argv=None):
         r["open_area_error"] = r["nf_open_area"] - ref["nf_open_area"]
         r["ranks"] = comm.size
     work_ratios(rows)
+    means = ensemble_means(rows)
     if comm.rank == 0:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
@@ -192,6 +232,12 @@ def main(argv=None):
                   flush=True)
             if r["h_fine"] is not None:
                 print("[study]   a static graded mesh with the same error needs "
+                      + ", ".join(f"{r['work_ratio_' + k.replace('_error', '')]:.2f}x the work ({k.split('_error')[0]})"
+                                  for k in QOIS), flush=True)
+        write_csv(out / "mesh_grading_means.csv", means)
+        for r in means[1:]:
+            if r["h_fine"] is not None:
+                print(f"[study] {r['case']}: on the means, a static graded mesh with the same error needs "
                       + ", ".join(f"{r['work_ratio_' + k.replace('_error', '')]:.2f}x the work ({k.split('_error')[0]})"
                                   for k in QOIS), flush=True)
     return rows

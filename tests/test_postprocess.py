@@ -333,17 +333,35 @@ def test_time_scheme_study_quick(tmp_path):
 def test_mesh_grading_work_for_the_same_error_follows_a_power_law():
     """The mesh-grading study's equal-error work: on errors that fall as 1/work it recovers the
     work of any error exactly, between the static meshes and beyond either end, and a work
-    ratio is the static work over the adaptive one; errors that do not fall give no ratio."""
-    from hydrofrac.postprocess.study_mesh_grading import equal_error_work, work_ratios
+    ratio is the static work over the adaptive one; errors that do not fall give no ratio.  An
+    ensemble's ratio is that of its mean |error| at its mean work, and neighbours are not
+    static meshes of their own."""
+    from hydrofrac.postprocess.study_mesh_grading import ensemble_means, equal_error_work, work_ratios
     static = [{"dof_steps": w, "e": s * 1e6 / w} for w, s in ((1e6, 1), (1e7, -1), (1e8, 1))]
     for err, work in ((0.05, 2e7), (-0.3, 10 ** 6.5 / 0.3 * 10 ** -0.5), (1e-3, 1e9), (10.0, 1e5)):
         assert equal_error_work(static, "e", err) == pytest.approx(work, rel=1e-12)
     assert np.isnan(equal_error_work([{"dof_steps": 1e6, "e": 1.0}, {"dof_steps": 1e7, "e": 2.0}], "e", 1.5))
     keys = ("intersection_time_error", "loaded_length_error", "open_area_error")
-    rows = [{"h_fine": None, "h_far": 0.5, "h_crack": 0.02, "dof_steps": 1e9, **dict.fromkeys(keys, 0.0)}]
-    rows += [{"h_fine": None, "h_far": 0.5, "h_crack": 0.03, "dof_steps": w, **dict.fromkeys(keys, 1e6 / w)}
-             for w in (1e6, 1e7, 1e8)]
-    rows.append({"h_fine": 0.03, "h_far": 1.0, "h_crack": 0.06, "dof_steps": 1e7, **dict.fromkeys(keys, 0.01)})
+    rows = [{"case": "ref", "h_fine": None, "h_far": 0.5, "h_crack": 0.02, "dof_steps": 1e9,
+             **dict.fromkeys(keys, 0.0)}]
+    rows += [{"case": f"static {w:g}", "h_fine": None, "h_far": 0.5, "h_crack": 0.03, "dof_steps": w,
+              **dict.fromkeys(keys, 1e6 / w)} for w in (1e6, 1e7, 1e8)]
+    rows.append({"case": "adaptive", "h_fine": 0.03, "h_far": 1.0, "h_crack": 0.06, "dof_steps": 1e7,
+                 **dict.fromkeys(keys, 0.01)})
     work_ratios(rows)
     assert rows[-1]["work_ratio_open_area"] == pytest.approx(10.0, rel=1e-12)
     assert rows[1]["work_ratio_intersection_time"] == ""
+    # an ensemble: the adaptive mesh and two neighbours at the same work err by 0.01, 0.005 and
+    # -0.03 (mean |error| 0.015), so the means' ratio is that of 0.015; a neighbour of a static
+    # mesh (an error of 1 at 1e7) is not a static mesh of its own
+    rows += [{**rows[4], "case": f"n{e}", "group": "adaptive", **dict.fromkeys(keys, e)} for e in (0.005, -0.03)]
+    rows.append({**rows[2], "case": "stray", "group": rows[2]["case"], **dict.fromkeys(keys, 1.0)})
+    work_ratios(rows)
+    assert rows[4]["work_ratio_open_area"] == pytest.approx(10.0, rel=1e-12)
+    means = ensemble_means(rows)
+    assert [m["case"] for m in means] == ["ref", "static 1e+06", "mean of 2: static 1e+07", "static 1e+08",
+                                          "mean of 3: adaptive"]
+    assert means[2]["dof_steps"] == 1e7 and means[2]["loaded_length_error"] == pytest.approx(0.55)
+    # between the static means (1e7, 0.55) and (1e8, 0.01), log-linear
+    assert means[-1]["work_ratio_loaded_length"] == pytest.approx(10 ** (np.log(0.015 / 0.55) / np.log(0.01 / 0.55)),
+                                                                  rel=1e-12)
