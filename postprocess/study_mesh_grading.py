@@ -50,7 +50,7 @@ CASES = [  # name, h_crack, h_far, adaptive h_fine (None: a static mesh)
 ]
 T_END = 1.0e-3
 #: the meshes run again with every size times these factors (h_crack, and h_fine of an adaptive
-#: mesh; h_far kept): the intersection time's error moves by a factor 2-4 between such
+#: mesh; h_far kept): the intersection time's error moves by up to 2-3x between such
 #: neighbours, so the equal-error ratios are also taken on the means of each ensemble
 ENSEMBLE = {"graded, h = 3 cm (full size)": (29 / 30, 31 / 30), "graded, h = 4.5 cm": (29 / 30, 31 / 30),
             "adaptive, h = 3 cm where flagged, 6 cm cracks": (29 / 30, 31 / 30)}
