@@ -639,7 +639,9 @@ class GrowthDriver:
         return None if hit is None else hit[0]
 
     def _crossing(self, p, q, me):
-        """(point, unit tangent of the crack segment met) of :meth:`_first_crossing`, or None.
+        """(point, unit tangent of the crack segment met) of :meth:`_first_crossing`, or None
+        (``me``: the tip whose own path counts short of its last segment; None: a segment of no
+        tip's path yet).
 
         A segment that would end within ``SNAP * da`` of another crack (short of it, or past
         the end of a crack beside it) meets it too, at the crossing of its extension or at
@@ -647,7 +649,7 @@ class GrowthDriver:
         step with them (a tip 0.5 µm short of a fracture gave a 5e-11 s step).  For the same
         reason a meeting point within ``SNAP * da`` of a vertex of the crack met moves onto
         that vertex (:meth:`_at_vertex`)."""
-        own = np.array(self.paths[me][:-1])
+        own = np.array(self.paths[me][:-1]) if me is not None else np.zeros((0, 2))
         lines = list(self.obstacles) + [np.array(pth) for j, pth in enumerate(self.paths) if j != me and len(pth) > 1]
         if len(own) > 1:
             lines.append(own)
@@ -920,25 +922,36 @@ class GrowthDriver:
         return out
 
     def _runs_along(self, p, d):
-        """Whether a segment leaving ``p`` along ``d`` leaves within ``params.edge_margin`` of a
-        crack through ``p``: one with a vertex there (a tip arrested on a crack moves onto a
-        vertex of it within ``SNAP * da``, where the crack may turn, so the far side of one of
-        its segments can hold the other's direction), or a segment through it.  Such a segment
-        would lie along that crack (Gmsh cannot mesh two cracks on one line)."""
+        """Whether a segment leaving ``p`` along ``d`` would lie along a crack through ``p``: one
+        with a vertex there (a tip arrested on a crack moves onto a vertex of it within
+        ``SNAP * da``, where the crack may turn, so the far side of one of its segments can
+        hold the other's direction), or a segment through it.  It would when it leaves within
+        ``params.edge_margin`` of that crack, or when its end would move onto that crack: an
+        end within ``SNAP * da`` of a crack meets it (:meth:`_crossing`), so up to
+        asin(SNAP) = 14.5° off a crack the segment would end on it (the full-size re-fracture
+        at h_crack = 0.0385 m stopped with "path 10 and path 12 overlap" at 5.5° off).  Gmsh
+        cannot mesh two cracks on one line."""
         cos_min = np.cos(np.radians(self.params.edge_margin))
         tol = 1e-7  # (points are snapped to 1 nm)
-        for line in list(self.obstacles) + [np.asarray(q, float) for q in self.paths if len(q) > 1]:
+
+        def through(line, x):  # the segments of ``line`` that pass within tol of x
             a, e = line[:-1], np.diff(line, axis=0)
             ee = np.maximum((e * e).sum(axis=1), 1e-300)
-            u = np.clip(((p - a) * e).sum(axis=1) / ee, 0.0, 1.0)
-            through = np.flatnonzero(np.linalg.norm(a + u[:, None] * e - p, axis=1) <= tol)
-            for k in through:  # the directions from p along the crack: to the segment's ends
+            u = np.clip(((x - a) * e).sum(axis=1) / ee, 0.0, 1.0)
+            return a, e, np.flatnonzero(np.linalg.norm(a + u[:, None] * e - x, axis=1) <= tol)
+
+        lines = [ln for ln in list(self.obstacles) + [np.asarray(q, float) for q in self.paths if len(q) > 1]
+                 if through(ln, p)[2].size]
+        for line in lines:
+            a, e, ks = through(line, p)
+            for k in ks:  # the directions from p along the crack: to the segment's ends
                 for q in (a[k], a[k] + e[k]):
                     r = q - p
                     n = np.linalg.norm(r)
                     if n > tol and float(r @ d) >= cos_min * n:
                         return True
-        return False
+        hit = self._crossing(p, np.round(p + self.da * np.asarray(d, float), 9), None) if lines else None
+        return hit is not None and any(through(line, hit[0])[2].size for line in lines)
 
     def current_speeds(self):
         """Each tip's current speed [m/s]: that of its last extension (None before its second).

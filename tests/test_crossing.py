@@ -172,13 +172,15 @@ def test_a_tip_meets_a_crack_at_its_vertex_when_near_it():
     assert len(d.paths[0]) == 2 and not d.tips[0].active and 0 not in d.arrested
 
 
-@pytest.mark.parametrize("angle, crosses", [(45.0, False), (47.0, False), (-30.0, True), (60.0, True)])
+@pytest.mark.parametrize("angle, crosses", [(45.0, False), (47.0, False), (52.0, False), (35.0, False),
+                                            (-30.0, True), (60.0, True)])
 def test_a_crossing_does_not_run_along_the_crack_it_crosses(angle, crosses):
     """A tip arrested on a crack sits on a vertex of it where it met the crack near one
     (:meth:`GrowthDriver._at_vertex`); the crack may turn there, so the far side of one of its
     segments can hold the direction of the other.  A crossing along that direction (within
     edge_margin, 5°) would lie on the crack (the full-size re-fracture stopped there: "path 4
-    and path 15 overlap"), so the tip stays arrested; other directions cross."""
+    and path 15 overlap"), and so would one whose end lies within SNAP * da of the crack (52°
+    and 35°: the end would move onto it), so the tip stays arrested; other directions cross."""
     from types import SimpleNamespace as NS
     other = np.array([[0.3, -1.0], [0.3, 0.0], [0.5, 0.2]])  # turns by 45° at (0.3, 0)
     d = GrowthDriver(lambda polylines: NS(), [Tip(np.array([0.0, 0.0]), np.array([1.0, 0.0]))],
