@@ -910,7 +910,7 @@ class GrowthDriver:
             phi = np.arctan2(d0[1], d0[0]) + th
             d = np.array([np.cos(phi), np.sin(phi)])
             new_point = np.round(point + self.da * d, 9)
-            if (self.inside is not None and not self.inside(new_point)) or self._runs_along(point, d):
+            if (self.inside is not None and not self.inside(new_point)) or self._runs_along(point, new_point):
                 self.arrested[i] = (point, _)
                 continue
             j = self._new_tip(point, d)
@@ -921,11 +921,11 @@ class GrowthDriver:
             out[i] = j
         return out
 
-    def _runs_along(self, p, d):
-        """Whether a segment leaving ``p`` along ``d`` would lie along a crack through ``p``: one
-        with a vertex there (a tip arrested on a crack moves onto a vertex of it within
-        ``SNAP * da``, where the crack may turn, so the far side of one of its segments can
-        hold the other's direction), or a segment through it.  It would when it leaves within
+    def _runs_along(self, p, q):
+        """Whether the segment p -> q would lie along a crack through ``p``: one with a vertex
+        there (a tip arrested on a crack moves onto a vertex of it within ``SNAP * da``, where
+        the crack may turn, so the far side of one of its segments can hold the other's
+        direction), or a segment through it.  It would when it leaves within
         ``params.edge_margin`` of that crack, or when its end would move onto that crack: an
         end within ``SNAP * da`` of a crack meets it (:meth:`_crossing`), so up to
         asin(SNAP) = 14.5° off a crack the segment would end on it (the full-size re-fracture
@@ -933,6 +933,7 @@ class GrowthDriver:
         cannot mesh two cracks on one line."""
         cos_min = np.cos(np.radians(self.params.edge_margin))
         tol = 1e-7  # (points are snapped to 1 nm)
+        d = (q - p) / np.linalg.norm(q - p)
 
         def through(line, x):  # the segments of ``line`` that pass within tol of x
             a, e = line[:-1], np.diff(line, axis=0)
@@ -940,17 +941,18 @@ class GrowthDriver:
             u = np.clip(((x - a) * e).sum(axis=1) / ee, 0.0, 1.0)
             return a, e, np.flatnonzero(np.linalg.norm(a + u[:, None] * e - x, axis=1) <= tol)
 
-        lines = [ln for ln in list(self.obstacles) + [np.asarray(q, float) for q in self.paths if len(q) > 1]
-                 if through(ln, p)[2].size]
-        for line in lines:
+        lines = []  # the cracks through p
+        for line in list(self.obstacles) + [np.asarray(pth, float) for pth in self.paths if len(pth) > 1]:
             a, e, ks = through(line, p)
+            if ks.size:
+                lines.append(line)
             for k in ks:  # the directions from p along the crack: to the segment's ends
-                for q in (a[k], a[k] + e[k]):
-                    r = q - p
+                for v in (a[k], a[k] + e[k]):
+                    r = v - p
                     n = np.linalg.norm(r)
                     if n > tol and float(r @ d) >= cos_min * n:
                         return True
-        hit = self._crossing(p, np.round(p + self.da * np.asarray(d, float), 9), None) if lines else None
+        hit = self._crossing(p, q, None) if lines else None
         return hit is not None and any(through(line, hit[0])[2].size for line in lines)
 
     def current_speeds(self):
