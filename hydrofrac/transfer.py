@@ -50,28 +50,31 @@ def _cell_keys(vertices):
 
 def _same_cells(old_vertices, new_vertices):
     """(new index, old index) of the new cells that are old cells (the same vertices)."""
+    if not len(old_vertices) or not len(new_vertices):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
     _, new_i, old_i = np.intersect1d(_cell_keys(new_vertices), _cell_keys(old_vertices), assume_unique=True,
                                      return_indices=True)
     return new_i.astype(np.int64), old_i.astype(np.int64)
 
 
 def _exchange_near(comm, old_cells, old_vertices, new_vertices):
-    """The old cells (``old_cells``: arrays of :func:`_owned_cells`, this rank's) that any point
-    of this rank's new cells can lie in, from every rank: each rank sends to each other rank only
-    its old cells whose centroid is within the largest old cell diameter of the box around that
-    rank's new cells (the cell holding a point has its centroid within that distance of it).
-    Every old cell a point can lie in, or be nearest to, is then here; the whole old mesh is
-    not (docs/benchmarks.md, "Remeshing")."""
+    """The old cells (``old_cells``: arrays of :func:`_owned_cells`, this rank's; their
+    ``old_vertices``) that any point of the given new cells (``new_vertices``, this rank's) can
+    lie in, from every rank: each rank sends to each other rank, and keeps of its own, only the
+    old cells whose bounding box meets the box around that rank's new cells.  Every old cell a
+    point can lie in is then here; the whole old mesh is not (docs/benchmarks.md,
+    "Remeshing")."""
     if comm.size == 1:
         return list(old_cells)
-    cent = old_cells[2]
-    edges = old_vertices - np.roll(old_vertices, 1, axis=1)
-    pad = comm.allreduce(float(np.sqrt((edges ** 2).sum(axis=2)).max()) if edges.size else 0.0, op=MPI.MAX)
+    # a cell can hold a point of a box only if its own box meets it (widened by a hair for the
+    # round-off of points on an edge, 1e-9 of the largest old cell)
+    lo, hi = old_vertices.min(axis=1), old_vertices.max(axis=1)
+    pad = 1e-9 * comm.allreduce(float((hi - lo).max()) if len(lo) else 0.0, op=MPI.MAX)
     box = ((new_vertices.reshape(-1, 2).min(axis=0), new_vertices.reshape(-1, 2).max(axis=0))
            if new_vertices.size else None)
     # one row of doubles per old cell (its arrays side by side), sent as raw buffers: no pickling,
     # and this rank's own rows are kept, not sent to itself
-    n = cent.shape[0]
+    n = old_cells[2].shape[0]
     shapes = [a.shape[1:] for a in old_cells]
     widths = [int(np.prod(sh)) for sh in shapes]
     rows = np.concatenate([np.asarray(a, dtype=np.float64).reshape(n, w) for a, w in zip(old_cells, widths)], axis=1)
@@ -79,7 +82,7 @@ def _exchange_near(comm, old_cells, old_vertices, new_vertices):
     picks = []
     for b in comm.allgather(box):
         picks.append(np.zeros(0, np.int64) if b is None else
-                     np.flatnonzero(np.all((cent >= b[0] - pad) & (cent <= b[1] + pad), axis=1)))
+                     np.flatnonzero(np.all((hi >= b[0] - pad) & (lo <= b[1] + pad), axis=1)))
     me = comm.rank
     send_n = np.array([0 if r == me else p.size for r, p in enumerate(picks)], dtype=np.int64)
     recv_n = np.empty_like(send_n)
@@ -159,6 +162,23 @@ def _evaluate(T, U, cell):
     return out
 
 
+def _copied(new, old, vertices, x0, Jinv, U, V_old, same_old, same_new):
+    """The values (c, nb, 5) of the new cells ``same_new`` (their ``vertices``) that are the old
+    cells ``same_old`` of the arrays ``x0, Jinv, U, V_old``: the old values as they are, their
+    nodes matched by position where the vertices come in another order (a cell with its
+    vertices in the old order has its nodes in the old order too)."""
+    copied = U[same_old].copy()
+    turned = np.flatnonzero((vertices != V_old[same_old]).any(axis=(1, 2)))
+    if turned.size:
+        sn, so = same_new[turned], same_old[turned]
+        g = new.geometry
+        pn = g.x0[sn, None, :] + np.einsum("cij,nj->cni", g.J[sn], new.ref.nodes)
+        po = x0[so, None, :] + np.einsum("cij,nj->cni", np.linalg.inv(Jinv[so]), old.ref.nodes)
+        perm = np.argmin(((pn[:, :, None, :] - po[:, None, :, :]) ** 2).sum(axis=3), axis=2)
+        copied[turned] = np.take_along_axis(U[so], perm[:, :, None], axis=1)
+    return copied
+
+
 def transfer_fields(old, new, method="projection", k=16):
     """Set ``new.x`` from ``old``'s DG fields; returns the largest barycentric miss (0 when
     every evaluation point lies in an old cell).
@@ -176,29 +196,27 @@ def transfer_fields(old, new, method="projection", k=16):
         raise ValueError(f"transfer method must be 'projection' or 'interpolation'; got {method!r}")
     comm = new.comm
     n_old = compat.num_cells_local(old.mesh)
-    x0, Jinv, cent, U, V_old = _exchange_near(comm, _owned_cells(old), old.geometry.vertices[:n_old],
-                                              new.geometry.vertices[:compat.num_cells_local(new.mesh)])
-    tree = cKDTree(cent)
     n_new = compat.num_cells_local(new.mesh)
     dofs = compat.cell_dofs(new.V)[:n_new]
     g = new.geometry
+    none = np.zeros(0, np.int64)
     # a new cell that is an old cell (a local remesh keeps the cells outside its patch) takes the
-    # old cell's values as they are: its nodes are the old cell's nodes, possibly in another order
-    same_new, same_old = (_same_cells(V_old, g.vertices[:n_new]) if old.degree == new.degree
-                          else (np.zeros(0, np.int64), np.zeros(0, np.int64)))
-    copied = None
-    if same_new.size:
-        copied = U[same_old].copy()  # (c, nb, 5)
-        # the cells whose vertices come in another order: their nodes are matched by position
-        # (a cell with its vertices in the old order has its nodes in the old order too)
-        turned = np.flatnonzero((g.vertices[same_new] != V_old[same_old]).any(axis=(1, 2)))
-        if turned.size:
-            sn, so = same_new[turned], same_old[turned]
-            pn = g.x0[sn, None, :] + np.einsum("cij,nj->cni", g.J[sn], new.ref.nodes)
-            po = x0[so, None, :] + np.einsum("cij,nj->cni", np.linalg.inv(Jinv[so]), old.ref.nodes)
-            perm = np.argmin(((pn[:, :, None, :] - po[:, None, :, :]) ** 2).sum(axis=3), axis=2)
-            copied[turned] = np.take_along_axis(U[so], perm[:, :, None], axis=1)
-    todo = np.setdiff1d(np.arange(n_new), same_new)  # the cells the transfer computes
+    # old cell's values as they are: first those this rank owned, then, from the old cells the
+    # others send, the rest (cells a rebalance moved).  Only the cells not found here decide
+    # what the others send: after a local remesh, the patch and its surroundings
+    own = _owned_cells(old)
+    same = old.degree == new.degree
+    here_new, here_old = _same_cells(own[4], g.vertices[:n_new]) if same else (none, none)
+    rest = np.setdiff1d(np.arange(n_new), here_new)
+    x0, Jinv, cent, U, V_old = _exchange_near(comm, own, old.geometry.vertices[:n_old], g.vertices[rest])
+    far_new, far_old = _same_cells(V_old, g.vertices[rest]) if same and comm.size > 1 else (none, none)
+    copied = [_copied(new, old, g.vertices[sn], x0_, Jinv_, U_, V_, so, sn)
+              for sn, so, (x0_, Jinv_, _, U_, V_) in ((here_new, here_old, own),
+                                                      (rest[far_new], far_old, (x0, Jinv, cent, U, V_old)))]
+    same_new = np.concatenate([here_new, rest[far_new]])
+    copied = np.concatenate(copied)
+    todo = np.setdiff1d(rest, same_new)  # the cells the transfer computes
+    tree = cKDTree(cent)
     miss = 0.0
     vals = np.zeros((0, 5))
     if todo.size and method == "interpolation":
@@ -220,7 +238,7 @@ def transfer_fields(old, new, method="projection", k=16):
     with new.x.localForm() as xl:
         arr = xl.array.reshape(-1, 5)
         arr[dofs[todo].reshape(-1)] = vals
-        if copied is not None:
+        if same_new.size:
             arr[dofs[same_new].reshape(-1)] = copied.reshape(-1, 5)
     new.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
     return comm.allreduce(miss, op=MPI.MAX)

@@ -126,9 +126,23 @@ def test_an_extension_changes_only_the_patch():
 
 @pytest.mark.mpi
 def test_an_extension_changes_only_the_patch_on_2_ranks(monkeypatch):
+    """... and the transfer moves only the patch's surroundings: the kept cells are copied from
+    the rank's own old cells, so each rank holds fewer old cells than it owned (before, it held
+    every old cell near the box of all its new cells: here more than it owned)."""
+    from hydrofrac import transfer
     from hydrofrac.meshes import patch
     monkeypatch.setattr(patch, "REBALANCE_TOLERANCE", np.inf)  # every kept cell stays on its rank
+    held = []
+    exchange = transfer._exchange_near
+
+    def counted(comm, old_cells, old_vertices, new_vertices):
+        got = exchange(comm, old_cells, old_vertices, new_vertices)
+        held.append((len(got[0]), len(old_vertices)))
+        return got
+    monkeypatch.setattr(transfer, "_exchange_near", counted)
     assert not extension_changes_only_the_patch(MPI.COMM_WORLD).rebalanced
+    (got, owned), = held
+    assert got < owned
 
 
 @pytest.mark.mpi
@@ -373,3 +387,17 @@ def test_the_region_makes_the_patch_the_whole_mesh_makes(monkeypatch):
     assert 0 < small.region_cells < whole.region_cells
     a, b = small.arrays, whole.arrays
     assert ({tuple(sorted(map(tuple, a.x[t]))) for t in a.cells} == {tuple(sorted(map(tuple, b.x[t]))) for t in b.cells})
+
+
+def test_crack_samples_are_linspace_per_segment_bit_for_bit():
+    """The size law's samples along the cracks (one vectorised pass) are each segment's
+    ``np.linspace(0, 1, n + 1)`` points, bit for bit: the patches Gmsh makes do not move."""
+    from hydrofrac.meshes.patch import _samples
+    rng = np.random.default_rng(3)
+    lines = {k: np.cumsum(rng.uniform(-0.07, 0.07, (int(rng.integers(2, 9)), 2)), axis=0) for k in range(6)}
+    lines[9] = np.array([[0.0, 0.0], [1e-4, 0.0]])  # shorter than a step: its two ends
+    step = 0.03 / 8
+    expected = [a + np.linspace(0.0, 1.0, max(int(np.ceil(np.linalg.norm(b - a) / step)), 1) + 1)[:, None] * (b - a)
+                for line in lines.values() for a, b in zip(line[:-1], line[1:])]
+    assert np.array_equal(_samples(lines, step), np.concatenate(expected))
+    assert _samples({}, step).shape == (0, 2)
