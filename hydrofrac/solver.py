@@ -308,7 +308,7 @@ class Solver:
         self.t = 0.0
         self.step_count = 0
         self.energy = EnergyBudget()
-        self.x = self.x_like()
+        self.x = compat.create_vector(self.V)
         self.set_initial_state()
         self.timers.add("setup", time.perf_counter() - t_setup)
 
@@ -552,14 +552,7 @@ class Solver:
         return blocks, compat.dof_coordinates(self.V)[blocks].T
 
     def x_like(self):
-        """A zero vector with the layout of x (V's, ghosted): a duplicate of the first one made,
-        which costs half of making one from the index map."""
-        if getattr(self, "_template", None) is None:
-            self._template = compat.create_vector(self.V)
-        v = self._template.duplicate()
-        with v.localForm() as vl:  # (the ghosts too)
-            vl.set(0.0)
-        return v
+        return compat.create_vector(self.V)
 
     def attach(self, extension):
         """Make ``extension`` (a crack :class:`~hydrofrac.interface.Interface`) part of the
