@@ -3,10 +3,10 @@ state.
 
 * **Bulk fields** (v, sigma): L2 projection per new cell (conservative, default) or
   interpolation at the new nodes; see :func:`transfer_fields`.  The old field is evaluated in
-  the old cell that contains each point, with that cell's own polynomial.  Each rank receives
-  only the old cells near its new cells (:func:`_exchange_near`: those within the box around
-  them, widened by the largest old cell), then fills its own new cells without further
-  communication.
+  the old cell that contains each point, with that cell's own polynomial.  A new cell that is
+  one of the rank's own old cells (outside a local remesh's patch) is copied from it; for the
+  others, each rank receives only the old cells whose bounding box meets the box around them
+  (:func:`_exchange_near`), then fills its own new cells without further communication.
 * **Interface state** (damage, opening, slip, smallest opening): by arc length along the
   crack polylines.  Each new Gauss point is located on the old facet of the same crack tag
   whose segment contains it, and takes the state of that facet's Gauss point nearest in arc
