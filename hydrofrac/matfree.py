@@ -22,6 +22,7 @@ side, so no reverse scatter is needed; ghost values must be current (forward sca
 from __future__ import annotations
 
 import functools
+from typing import Dict, NamedTuple
 
 import numpy as np
 from mpi4py import MPI
@@ -565,6 +566,63 @@ def implements_forms() -> bool:
     return forms_signature() == IMPLEMENTED_SIGNATURE
 
 
+class ReferenceData(NamedTuple):
+    """What the kernels need of the reference element alone (no cell's geometry): the
+    derivative matrices S_r[i, j] = int phi_i d_r phi_j, the facet quadrature weights ``qw``,
+    the basis on each ordered reference edge (``tables``, code 3 i + j), its nodes ``fnodes``
+    and the facet mass matrix ``Mf``, and the reference mass matrix ``Mref`` and its inverse.
+    Every solver of
+    the same element shares these arrays: nothing may write to them (they stay writeable, so
+    that the compiled kernels see the array types they were compiled for)."""
+
+    S0: np.ndarray
+    S1: np.ndarray
+    qw: np.ndarray
+    tables: np.ndarray
+    fnodes: np.ndarray
+    Mf: np.ndarray
+    Mref: np.ndarray
+    Mref_inv: np.ndarray
+
+
+#: :func:`reference_data` of each element met so far (degree, nodes): a remesh's new solver
+#: reuses them (docs/benchmarks.md, "Reference data once per element")
+_REFERENCE: Dict[tuple, ReferenceData] = {}
+
+
+def reference_data(ref) -> ReferenceData:
+    """:class:`ReferenceData` of the nodal element ``ref``, computed once per element."""
+    key = (ref.degree, ref.nodes.shape, ref.nodes.tobytes())
+    if key in _REFERENCE:
+        return _REFERENCE[key]
+    p = ref.degree
+    Xq, wq = triangle_quadrature(2 * p)
+    phi = ref.tabulate(Xq)
+    dphi = ref.tabulate_grad(Xq)
+    S0 = np.ascontiguousarray(np.einsum("q,qi,qj->ij", wq, phi, dphi[:, :, 0]))
+    S1 = np.ascontiguousarray(np.einsum("q,qi,qj->ij", wq, phi, dphi[:, :, 1]))
+    if ref.nodes.shape[0] == 3:  # P1: the kernels use row 0 of S_r for every row (_kernels)
+        for S in (S0, S1):
+            if not np.allclose(S, S[0], rtol=0.0, atol=1e-14 * np.abs(S).max()):
+                raise RuntimeError("P1 basis with non-constant gradients: the kernels' one-row volume "
+                                   "terms do not apply")
+    s, w = line_quadrature(2 * p + 1)
+    qw = np.ascontiguousarray(w)
+    # one table per ordered pair (i, j) of reference vertices: the facet from vertex i to j
+    tables = np.zeros((9, s.size, ref.nodes.shape[0]))
+    for i in range(3):
+        for j in range(3):
+            if i != j:
+                pts = _REF_VERTICES[i] + s[:, None] * (_REF_VERTICES[j] - _REF_VERTICES[i])
+                tables[3 * i + j] = ref.tabulate(pts)
+    fnodes, Mf = facet_nodes(ref, tables, qw)
+    Mref = ref.mass()
+    data = ReferenceData(S0, S1, qw, tables, fnodes, Mf, np.ascontiguousarray(Mref),
+                         np.ascontiguousarray(np.linalg.inv(Mref)))
+    _REFERENCE[key] = data
+    return data
+
+
 class MatrixFreeOperator:
     """Bulk operator M^{-1}(K_vol + K_int) of a :class:`~hydrofrac.solver.Solver`, applied
     cell by cell (see the module docstring).  ``facets``: local indices of the interior
@@ -575,19 +633,9 @@ class MatrixFreeOperator:
         tdim = mesh.topology.dim
         ref, g = solver.ref, solver.geometry
         self.mesh, self.geometry, self.comm = mesh, g, mesh.comm
-        p = solver.degree
         self.nowned = compat.num_cells_local(mesh)
-        # reference derivative matrices S_r[i, j] = int phi_i d_r phi_j
-        Xq, wq = triangle_quadrature(2 * p)
-        phi = ref.tabulate(Xq)
-        dphi = ref.tabulate_grad(Xq)
-        self.S0 = np.ascontiguousarray(np.einsum("q,qi,qj->ij", wq, phi, dphi[:, :, 0]))
-        self.S1 = np.ascontiguousarray(np.einsum("q,qi,qj->ij", wq, phi, dphi[:, :, 1]))
-        if ref.nodes.shape[0] == 3:  # P1: the kernels use row 0 of S_r for every row (_kernels)
-            for S in (self.S0, self.S1):
-                if not np.allclose(S, S[0], rtol=0.0, atol=1e-14 * np.abs(S).max()):
-                    raise RuntimeError("P1 basis with non-constant gradients: the kernels' one-row volume "
-                                       "terms do not apply")
+        r = reference_data(ref)
+        self.S0, self.S1, self.qw, self.tables, self.fnodes, self.Mf = r.S0, r.S1, r.qw, r.tables, r.fnodes, r.Mf
         self.Jinv = np.ascontiguousarray(g.Jinv)
         self.absdet = np.ascontiguousarray(np.abs(g.detJ))
         self.Minv_ref = np.ascontiguousarray(solver.Mref_inv, dtype=float)
@@ -613,17 +661,6 @@ class MatrixFreeOperator:
         self.Zs = np.ascontiguousarray(solver.rho_cell * cs)
 
         # facets: both cells, + side = the cell the normal points away from
-        s, w = line_quadrature(2 * p + 1)
-        self.qw = np.ascontiguousarray(w)
-        # one table per ordered pair (i, j) of reference vertices: the facet from vertex i to j
-        tables = np.zeros((9, s.size, ref.nodes.shape[0]))
-        for i in range(3):
-            for j in range(3):
-                if i != j:
-                    pts = _REF_VERTICES[i] + s[:, None] * (_REF_VERTICES[j] - _REF_VERTICES[i])
-                    tables[3 * i + j] = ref.tabulate(pts)
-        self.tables = tables
-        self.fnodes, self.Mf = facet_nodes(ref, tables, self.qw)
         (self._volume, self._facets, self._dissipation, self._energies, self._boundary,
          self._boundary_energy, self._corrector) = _kernels(nb, self.fnodes.shape[1], self.contiguous)
         c_off, c_arr = compat.connectivity(mesh, tdim - 1, tdim)
@@ -657,7 +694,7 @@ class MatrixFreeOperator:
         self._Rzero = np.zeros_like(self.R)  # (the volume kernel leaves it zero)
         self._D = None  # the nodal derivative matrices (ADER's predictor), when first asked for
         self._R_clear = True
-        self.Mref = np.ascontiguousarray(ref.mass())
+        self.Mref = r.Mref
         self.Bmat = solver.material_blocks
         # the volume, interior facet and ADER kernels in C, in blocks of cells (hydrofrac/native.py)
         # for a cell-contiguous space; otherwise, or with HYDROFRAC_KERNELS=numba, the numba ones

@@ -471,7 +471,8 @@ class Solver:
         which = np.maximum(self.cell_material, 0)
         self.material_blocks = np.ascontiguousarray(B[which])  # per cell: rho for v, compliance for sigma
         self.material_blocks_inv = np.ascontiguousarray(np.linalg.inv(B)[which])
-        self.Mref_inv = np.ascontiguousarray(np.linalg.inv(self.ref.mass()))
+        from .matfree import reference_data  # (the element's data, computed once per element)
+        self.Mref_inv = reference_data(self.ref).Mref_inv
         absdet = np.abs(self.geometry.detJ)
         self._absdet_own = absdet[:nloc].copy()  # for M (built on first use)
         # M_c^{-1} = Mref_inv kron Binv_scaled[c] (all cells incl. ghosts), for cell-local kernels

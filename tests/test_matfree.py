@@ -224,3 +224,19 @@ def test_kernels_choice_is_checked(monkeypatch, tmp_path):
         native._identity.cache_clear()
         native._library.cache_clear()
     assert not list(tmp_path.iterdir())  # no half-written library left behind
+
+
+def test_reference_data_is_made_once_per_element():
+    """A solver on a new mesh (a remesh) reuses the element's reference data (derivative and
+    mass matrices, edge tables) instead of computing them again (docs/benchmarks.md,
+    "Reference data once per element"); they equal freshly computed ones, bit for bit."""
+    from hydrofrac import matfree
+    comm = MPI.COMM_WORLD
+    a = Solver(exact.unit_square(4, comm=comm)[0], 2, ROCK)
+    b = Solver(exact.unit_square(6, comm=comm)[0], 2, ROCK)
+    assert b.matfree.S0 is a.matfree.S0 and b.matfree.tables is a.matfree.tables and b.Mref_inv is a.Mref_inv
+    fresh = matfree._REFERENCE.pop((a.ref.degree, a.ref.nodes.shape, a.ref.nodes.tobytes()))
+    again = matfree.reference_data(b.ref)
+    assert again is not fresh
+    assert all(np.array_equal(x, y) for x, y in zip(again, fresh))
+    assert Solver(exact.unit_square(4, comm=comm)[0], 3, ROCK).matfree.S0.shape == (10, 10)
