@@ -125,6 +125,11 @@ class SizeLaw:
     h_tip: Optional[float] = None
     tip_radius: float = 0.0
 
+    @property
+    def smallest(self) -> float:
+        """The smallest size the law gives anywhere: h_crack, or h_tip if smaller."""
+        return min(self.h_crack, self.h_far, self.h_crack if self.h_tip is None else self.h_tip)
+
     def sampler(self, polylines: Dict[int, np.ndarray], tips: Sequence[Tuple[float, float]] = ()):
         """sizes(points (m, 2)) for the given crack lines (a tree of points sampled along them)."""
         from scipy.spatial import cKDTree
@@ -456,7 +461,8 @@ def _patch(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], added, radiu
     edge_len = np.linalg.norm(old.nodes[e[:, 0]] - old.nodes[e[:, 1]], axis=1).reshape(3, nt).max(axis=0)
     core = dist < radius
     cand = core.copy()
-    reach = np.flatnonzero(~core & (dist < size.grading))
+    # (a cell no longer than 1.5 times the smallest size the law gives is never too coarse)
+    reach = np.flatnonzero(~core & (dist < size.grading) & (edge_len > 1.5 * size.smallest))
     if reach.size:
         target = fn(cent[reach])
         cand[reach] = edge_len[reach] > 1.5 * target
@@ -760,6 +766,9 @@ def _region(comm, cells, cxy, facets, added, polylines, radius, size, tips):
         if reach.size:
             xy = cxy[reach]
             longest = np.sqrt(((xy - np.roll(xy, 1, axis=1)) ** 2).sum(axis=2)).max(axis=1)
+            coarse = longest > 1.5 * size.smallest  # (only these can be too coarse: see _patch)
+            reach, longest = reach[coarse], longest[coarse]
+        if reach.size:
             seed[reach] = longest > 1.5 * size.sampler(polylines, tips)(cent[reach])
     nodes = np.unique(cells[seed])
     inside = seed
