@@ -12,6 +12,13 @@ their Gauss points per Runge-Kutta stage.
 * :func:`apply_block_inverse` multiplies the residual of the touched cells by their
   closed-form inverse mass blocks.
 
+The kernels are compiled without the fast-math flags (``njit(exact=True)``): with them, a run
+that compiles these kernels and a run that loads them from numba's cache differed in the last
+digit (the contraction of the inlined point functions into fused multiply-adds is not the
+same in the two), and so a fresh install's first run differed from the next ones
+(docs/benchmarks.md, "Runs that compile the interface kernels").  Without them the two agree,
+and the kernels are as fast.
+
 Layouts: the field vector holds 5 values (v_x, v_y, s_xx, s_yy, s_xy) per dof block; the
 per-facet data (normal, impedances, scales, weights, both cells' basis at the Gauss points,
 cells and dof blocks) are packed into two records per facet (:func:`pack_facets`).  Local components: 0 = normal, 1 = tangent
@@ -71,7 +78,7 @@ def pack_facets(normal, Zp, Zm, Zt, k, delta_scale, v_scale, tau, weights, phi_p
     return P, I
 
 
-@njit
+@njit(exact=True)
 def _trace(X, I, P, f, q, side, nq, nb, nx, ny):
     """(v_n, v_t, s_n, s_t) of one side (0: +, 1: -) at Gauss point q of facet f."""
     u0 = u1 = u2 = u3 = u4 = 0.0
@@ -90,7 +97,7 @@ def _trace(X, I, P, f, q, side, nq, nb, nx, ny):
     return u0 * nx + u1 * ny, -u0 * ny + u1 * nx, sx * nx + sy * ny, -sx * ny + sy * nx
 
 
-@njit
+@njit(exact=True)
 def _point(X, P, I, nq, nb, f, q, D, delta, S0, cS, S_scale, regularized, delta0, w0, kappa):
     """Traces, bonded solution, separation traction, eta and combined targets at Gauss
     point q of facet f, as a :data:`Point`.  (The callers unpack their records into these
@@ -120,7 +127,7 @@ def _point(X, P, I, nq, nb, f, q, D, delta, S0, cS, S_scale, regularized, delta0
                  r[6], e, w)
 
 
-@njit
+@njit(exact=True)
 def interface_targets(X, F, Z, Sep, L, T):
     """Targets at every Gauss point into the :data:`Targets` arrays ``T``.
 
@@ -144,7 +151,7 @@ def interface_targets(X, F, Z, Sep, L, T):
             T.w[i] = o.w
 
 
-@njit
+@njit(exact=True)
 def interface_stage(X, Rc, r, nowned, rates, F, Z, Sep, L):
     """One Runge-Kutta stage on the crack facets in one pass: the targets at every Gauss
     point (as :func:`interface_targets`), their flux corrections added to the residuals
@@ -175,7 +182,7 @@ def interface_stage(X, Rc, r, nowned, rates, F, Z, Sep, L):
 # numba's dispatcher types a namedtuple argument in Python (tens of µs a call, measured in the
 # demo's profile: ~1 ms a step), while arrays and scalars take its compiled fast path; the
 # records are rebuilt inside the compiled code, where they cost nothing.
-@njit
+@njit(exact=True)
 def interface_stage_flat(X, Rc, r, nowned, rates, P, I, nq, nb, D, delta, S0, cS, scale,
                          reg, d0, w0, kappa, beta, s_onset, s_bar, a):
     """:func:`interface_stage` with the fields of its records as arguments."""
@@ -183,7 +190,7 @@ def interface_stage_flat(X, Rc, r, nowned, rates, P, I, nq, nb, D, delta, S0, cS
                     Laws(reg, d0, w0, kappa, beta, s_onset, s_bar, a))
 
 
-@njit
+@njit(exact=True)
 def interface_targets_flat(X, P, I, nq, nb, D, delta, S0, cS, scale, reg, d0, w0, kappa, beta, s_onset, s_bar, a,
                            vp, vm, sp, sm, s_B, S, s_star, vp_star, vm_star, eta, gamma, w):
     """:func:`interface_targets` with the fields of its records as arguments."""
@@ -197,7 +204,7 @@ def interface_targets_flat(X, P, I, nq, nb, D, delta, S0, cS, scale, reg, d0, w0
 _AHEAD = 6
 
 
-@njit
+@njit(exact=True)
 def _prefetch_cells(X, Rc, I, f, nb, nowned):
     for side in range(2):
         c = I[f, side]
@@ -208,7 +215,7 @@ def _prefetch_cells(X, Rc, I, f, nb, nowned):
                 prefetch(Rc, c * 5 * nb + o)
 
 
-@njit
+@njit(exact=True)
 def _scatter(Rc, r, P, I, nowned, f, q, side, nq, nb, F0, F1, F2, F3, F4):
     """Add one Gauss point's flux to the facet's cell on one side: into the cell-major
     residual Rc[c, j, :] of the matrix-free operator if the cell is one of its first
@@ -235,7 +242,7 @@ def _scatter(Rc, r, P, I, nowned, f, q, side, nq, nb, F0, F1, F2, F3, F4):
             r[b + 4] += a * F4
 
 
-@njit
+@njit(exact=True)
 def _flux(Rc, r, P, I, nowned, f, q, nq, nb, nx, ny, w, vpn, vpt, vmn, vmt,
           spn, spt, smn, smt, ssn, sst, vpsn, vpst, vmsn, vmst):
     """Flux corrections of both sides at one Gauss point (weight w) (see :func:`_scatter`):
@@ -256,7 +263,7 @@ def _flux(Rc, r, P, I, nowned, f, q, nq, nb, nx, ny, w, vpn, vpt, vmn, vmt,
         _scatter(Rc, r, P, I, nowned, f, q, side, nq, nb, F0, F1, F2, F3, F4)
 
 
-@njit
+@njit(exact=True)
 def interface_power(vp, vm, vp_star, vm_star, s_star, s_B, S, D, eta, gamma, Zp, Zm, Zt_n, normal, nq, s0, w):
     """This rank's four power terms of the crack facets at their Gauss points, in the order of
     :data:`hydrofrac.energy.DISSIPATION_TERMS` (:meth:`hydrofrac.interface.Interface.
@@ -287,7 +294,7 @@ def interface_power(vp, vm, vp_star, vm_star, s_star, s_B, S, D, eta, gamma, Zp,
     return out
 
 
-@njit
+@njit(exact=True)
 def kron_inverse(loc, Mref_inv, B, tmp, res):
     """res = (Mref_inv kron B) applied to one cell's values ``loc`` (nb, 5): the closed-form
     inverse mass M_c^{-1} of an affine cell (5 nb^2 + 25 nb flops); ``tmp`` is scratch."""
@@ -306,7 +313,7 @@ def kron_inverse(loc, Mref_inv, B, tmp, res):
             res[a, k] = acc
 
 
-@njit
+@njit(exact=True)
 def apply_block_inverse(out, r, cells, dofs, Mref_inv, Binv):
     """out[idx] += M_c^{-1} r[idx] for each cell c of ``cells`` (idx = its 5 nb values,
     block-major: 5 dofs[c, j] + component), M_c^{-1} = Mref_inv kron Binv[c]."""
@@ -326,7 +333,7 @@ def apply_block_inverse(out, r, cells, dofs, Mref_inv, Binv):
                 out[base + k] += res[a, k]
 
 
-@njit
+@njit(exact=True)
 def advance_state(z0, inc, D_n, delta_scale, delta0, flow, clip):
     """The interface state z0 + inc (damage, opening, slip; (3, nf, nq)), admissible, in one
     pass (:meth:`hydrofrac.interface.Interface.advance`): where ``flow`` and the free opening

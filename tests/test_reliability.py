@@ -340,3 +340,19 @@ def test_every_dissipation_term_is_non_negative(script, tmp_path):
     e = json.loads((out / "summary.json").read_text())["energy"]
     for key in ("radiated", "dissipated_flux", "dissipated_friction", "dissipated_damage", "dissipated_relaxation"):
         assert e[key] >= -1e-9 * max(1.0, abs(e["initial"]) + abs(e["work_in"])), (key, e[key])
+
+
+def test_a_run_that_compiles_the_kernels_ends_as_one_that_loads_them(tmp_path):
+    """A fresh install's first run compiles numba's kernels; the next ones load them from its
+    cache.  Both must give the same numbers, bit for bit: with the fast-math flags on the
+    interface kernels (hydrofrac/kernels.py) they differed in the last digit from step 55 of
+    this run on (docs/benchmarks.md, "Runs that compile the interface kernels")."""
+    env = {**os.environ, **MPI_ENV, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    for name in ("compiles", "loads"):
+        res = subprocess.run([sys.executable, "scenarios/refracture.py", "--quick", "--t-end", "2e-4",
+                              "--out", str(tmp_path / name)], cwd=ROOT, env=env, capture_output=True, text=True,
+                             timeout=600)
+        assert res.returncode == 0, res.stderr[-3000:]
+    first, second = ((tmp_path / n / "history.csv").read_bytes() for n in ("compiles", "loads"))
+    assert len(first.splitlines()) > 15
+    assert first == second
