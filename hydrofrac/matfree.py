@@ -571,9 +571,8 @@ class ReferenceData(NamedTuple):
     derivative matrices S_r[i, j] = int phi_i d_r phi_j, the facet quadrature weights ``qw``,
     the basis on each ordered reference edge (``tables``, code 3 i + j), its nodes ``fnodes``
     and the facet mass matrix ``Mf``, and the reference mass matrix ``Mref`` and its inverse.
-    Every solver of
-    the same element shares these arrays: nothing may write to them (they stay writeable, so
-    that the compiled kernels see the array types they were compiled for)."""
+    Every solver of the same element shares these arrays: nothing may write to them (they stay
+    writeable, so that the compiled kernels see the array types they were compiled for)."""
 
     S0: np.ndarray
     S1: np.ndarray

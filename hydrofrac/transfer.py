@@ -162,16 +162,16 @@ def _evaluate(T, U, cell):
     return out
 
 
-def _copied(new, old, vertices, x0, Jinv, U, V_old, same_old, same_new):
-    """The values (c, nb, 5) of the new cells ``same_new`` (their ``vertices``) that are the old
-    cells ``same_old`` of the arrays ``x0, Jinv, U, V_old``: the old values as they are, their
-    nodes matched by position where the vertices come in another order (a cell with its
+def _copied(new, old, x0, Jinv, U, V_old, same_old, same_new):
+    """The values (c, nb, 5) of the new cells ``same_new`` that are the old cells ``same_old``
+    of the arrays ``x0, Jinv, U, V_old`` (as :func:`_owned_cells` gives them): the old values as they are,
+    their nodes matched by position where the vertices come in another order (a cell with its
     vertices in the old order has its nodes in the old order too)."""
+    g = new.geometry
     copied = U[same_old].copy()
-    turned = np.flatnonzero((vertices != V_old[same_old]).any(axis=(1, 2)))
+    turned = np.flatnonzero((g.vertices[same_new] != V_old[same_old]).any(axis=(1, 2)))
     if turned.size:
         sn, so = same_new[turned], same_old[turned]
-        g = new.geometry
         pn = g.x0[sn, None, :] + np.einsum("cij,nj->cni", g.J[sn], new.ref.nodes)
         po = x0[so, None, :] + np.einsum("cij,nj->cni", np.linalg.inv(Jinv[so]), old.ref.nodes)
         perm = np.argmin(((pn[:, :, None, :] - po[:, None, :, :]) ** 2).sum(axis=3), axis=2)
@@ -210,11 +210,9 @@ def transfer_fields(old, new, method="projection", k=16):
     rest = np.setdiff1d(np.arange(n_new), here_new)
     x0, Jinv, cent, U, V_old = _exchange_near(comm, own, old.geometry.vertices[:n_old], g.vertices[rest])
     far_new, far_old = _same_cells(V_old, g.vertices[rest]) if same and comm.size > 1 else (none, none)
-    copied = [_copied(new, old, g.vertices[sn], x0_, Jinv_, U_, V_, so, sn)
-              for sn, so, (x0_, Jinv_, _, U_, V_) in ((here_new, here_old, own),
-                                                      (rest[far_new], far_old, (x0, Jinv, cent, U, V_old)))]
+    copied = np.concatenate([_copied(new, old, own[0], own[1], own[3], own[4], here_old, here_new),
+                             _copied(new, old, x0, Jinv, U, V_old, far_old, rest[far_new])])
     same_new = np.concatenate([here_new, rest[far_new]])
-    copied = np.concatenate(copied)
     todo = np.setdiff1d(rest, same_new)  # the cells the transfer computes
     tree = cKDTree(cent)
     miss = 0.0
