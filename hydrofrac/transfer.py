@@ -72,13 +72,15 @@ def _exchange_near(comm, old_cells, old_vertices, new_vertices):
     pad = 1e-9 * comm.allreduce(float((hi - lo).max()) if len(lo) else 0.0, op=MPI.MAX)
     box = ((new_vertices.reshape(-1, 2).min(axis=0), new_vertices.reshape(-1, 2).max(axis=0))
            if new_vertices.size else None)
-    # one row of doubles per old cell (its arrays side by side), sent as raw buffers: no pickling,
-    # and this rank's own rows are kept, not sent to itself
-    n = old_cells[2].shape[0]
+    # one row of doubles per picked old cell (its arrays side by side), sent as raw buffers: no
+    # pickling, and this rank's own rows are kept, not sent to itself
     shapes = [a.shape[1:] for a in old_cells]
     widths = [int(np.prod(sh)) for sh in shapes]
-    rows = np.concatenate([np.asarray(a, dtype=np.float64).reshape(n, w) for a, w in zip(old_cells, widths)], axis=1)
-    width = rows.shape[1]
+    width = sum(widths)
+
+    def rows(idx):
+        return np.concatenate([np.asarray(a[idx], dtype=np.float64).reshape(len(idx), w)
+                               for a, w in zip(old_cells, widths)], axis=1)
     picks = []
     for b in comm.allgather(box):
         picks.append(np.zeros(0, np.int64) if b is None else
@@ -87,11 +89,11 @@ def _exchange_near(comm, old_cells, old_vertices, new_vertices):
     send_n = np.array([0 if r == me else p.size for r, p in enumerate(picks)], dtype=np.int64)
     recv_n = np.empty_like(send_n)
     comm.Alltoall(send_n, recv_n)
-    sendbuf = np.concatenate([rows[p] for r, p in enumerate(picks) if r != me] + [np.zeros((0, width))])
+    sendbuf = np.concatenate([rows(p) for r, p in enumerate(picks) if r != me] + [np.zeros((0, width))])
     recvbuf = np.empty((int(recv_n.sum()), width))
     comm.Alltoallv([sendbuf, send_n * width, MPI.DOUBLE], [recvbuf, recv_n * width, MPI.DOUBLE])
     offsets = np.r_[0, np.cumsum(recv_n)]
-    got = np.concatenate([rows[picks[me]] if r == me else recvbuf[offsets[r]:offsets[r + 1]]
+    got = np.concatenate([rows(picks[me]) if r == me else recvbuf[offsets[r]:offsets[r + 1]]
                           for r in range(comm.size)])  # by source rank, as before
     cols = np.r_[0, np.cumsum(widths)]
     return [np.ascontiguousarray(got[:, cols[i]:cols[i + 1]]).reshape((-1,) + sh) for i, sh in enumerate(shapes)]
