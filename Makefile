@@ -7,8 +7,8 @@
 #   make studies the speed-against-accuracy studies (DG vs CG, crack problems, contact, mesh grading)
 #
 # DOLFINx, PETSc, Gmsh, NumPy, SciPy, numba, matplotlib and ParaView come from
-# Debian 12; the venv sees them (--system-site-packages) and adds pyvista and tqdm.
-# constraints.txt pins NumPy to the Debian version so pip never replaces it.
+# Debian 12; the venv sees them (--system-site-packages) and adds pyvista (and what it needs).
+# constraints.txt pins NumPy to the Debian version so pip never replaces it, and what pyvista pulls in.
 
 SHELL := /bin/bash
 .DEFAULT_GOAL := help
