@@ -94,14 +94,14 @@ class EnergyAccount:
         self.last_rates = None
         self.recent_balance = []
         mesh = solver.mesh
-        rho, lam, mu = solver.rho, solver.lam, solver.mu
-        U, W = ufl.TrialFunction(solver.V), ufl.TestFunction(solver.V)
-        self.u = compat.function(solver.V, "U")
         self.Qd = None
         self._power_forms = []
         self._bdiss_form = None
         if solver.matfree is not None:  # its kernels compute the rates (MatrixFreeOperator.boundary_rates)
             return
+        rho, lam, mu = solver.rho, solver.lam, solver.mu
+        U, W = ufl.TrialFunction(solver.V), ufl.TestFunction(solver.V)
+        self.u = compat.function(solver.V, "U")
         dS = compat.measure("dS", mesh, solver._interior_facet_tags())
         Qd = ef.interior_dissipation(U, W, rho, lam, mu, dS(BULK_FACET))
         self.Qd = _to_baij(compat.assemble_matrix(compat.form(Qd)), ef.NCOMP)
@@ -140,8 +140,8 @@ class EnergyAccount:
     def _local_energies(self):
         """This rank's (kinetic, strain) sums (matrix-free)."""
         s = self.solver
-        with s.x.localForm() as xl, s.x0.localForm() as x0l:
-            return np.array(s.matfree.energies(xl.array_r, x0l.array_r))
+        with s.x.localForm() as xl:
+            return np.array(s.matfree.energies(xl.array_r, s.state0))
 
     def _local_rates(self):
         """This rank's (power in, power out, upwind dissipation) sums (matrix-free); updates the

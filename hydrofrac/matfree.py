@@ -388,8 +388,9 @@ def _kernels(nb, nk, contig=False):
 
     @njit
     def cell_energies(X, X0, dofs, ncells, Mref, absdet, Bmat):
-        """(kinetic, strain) energy of X - X0 on the owned cells: 1/2 u^T M_c u with
-        M_c = |det J| Mref kron B_c (B_c: rho for v, the compliance for sigma)."""
+        """(kinetic, strain) energy of X - X0 on the owned cells, X0 (5,) the uniform initial
+        state at every node: 1/2 u^T M_c u with M_c = |det J| Mref kron B_c (B_c: rho for v,
+        the compliance for sigma)."""
         u = np.empty((nb, 5))
         kin = 0.0
         strain = 0.0
@@ -397,7 +398,7 @@ def _kernels(nb, nk, contig=False):
             for j in range(nb):
                 base = 5 * dofs[c, j]
                 for k in range(5):
-                    u[j, k] = X[base + k] - X0[base + k]
+                    u[j, k] = X[base + k] - X0[k]
             B = Bmat[c]
             ek = 0.0
             es = 0.0
@@ -846,9 +847,10 @@ class MatrixFreeOperator:
                                      self.bkinds, self.G, self.bradiating, self.fnodes, self.Mf, self.Zd, self.Zs,
                                      float(sigma0[0, 0]), float(sigma0[1, 1]), float(sigma0[0, 1]))
 
-    def energies(self, xloc, x0loc):
-        """This rank's (kinetic, strain) energy of x - x0 [J/m]."""
-        return self._energies(xloc, x0loc, self.dofs, self.nowned, self.Mref, self.absdet, self.Bmat)
+    def energies(self, xloc, state0):
+        """This rank's (kinetic, strain) energy of x less the uniform initial state ``state0``
+        (5,) [J/m]."""
+        return self._energies(xloc, state0, self.dofs, self.nowned, self.Mref, self.absdet, self.Bmat)
 
     def apply(self, xloc, out, t=0.0):
         """out (owned values) = M^{-1}(K_vol + K_int + K_bdry) x + the boundary data's term at

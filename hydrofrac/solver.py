@@ -333,17 +333,40 @@ class Solver:
                 raise ValueError("some cells have a tag without a material; give a Material for every cell tag")
         self.materials = order
         self.cell_material = cell_mat
-        Q0 = compat.dg_space(self.mesh, 0)
-        self.rho, self.lam, self.mu = (compat.function(Q0, n) for n in ("rho", "lambda", "mu"))
-        q0dofs = compat.cell_dofs(Q0)[:, 0]
-        for f, key in ((self.rho, "rho"), (self.lam, "lam"), (self.mu, "mu")):
-            vals = np.array([getattr(m, key) for m in order])[np.maximum(cell_mat, 0)]
-            compat.function_array(f)[q0dofs] = vals
-            compat.scatter_forward(f)
+        self._coefficients = None  # (rho, lambda, mu) as DG0 Functions, made when a form needs them
         self.cd_cell = np.array([m.cd for m in order])[np.maximum(cell_mat, 0)]
         self.rho_cell = np.array([m.rho for m in order])[np.maximum(cell_mat, 0)]
         self.lam_cell = np.array([m.lam for m in order])[np.maximum(cell_mat, 0)]
         self.mu_cell = np.array([m.mu for m in order])[np.maximum(cell_mat, 0)]
+
+    @property
+    def rho(self):
+        """The density as a DG0 Function (for UFL forms; the kernels use ``rho_cell``)."""
+        return self._material_functions()[0]
+
+    @property
+    def lam(self):
+        """Lame's lambda as a DG0 Function (for UFL forms; the kernels use ``lam_cell``)."""
+        return self._material_functions()[1]
+
+    @property
+    def mu(self):
+        """The shear modulus as a DG0 Function (for UFL forms; the kernels use ``mu_cell``)."""
+        return self._material_functions()[2]
+
+    def _material_functions(self):
+        """(rho, lambda, mu) per cell as DG0 Functions, made on first use: the assembled operator,
+        its energy forms and forms a user writes need them; the matrix-free kernels do not, so a
+        remesh with them builds no DG0 space (collective: every rank asks at the same point)."""
+        if self._coefficients is None:
+            Q0 = compat.dg_space(self.mesh, 0)
+            fs = tuple(compat.function(Q0, n) for n in ("rho", "lambda", "mu"))
+            q0dofs = compat.cell_dofs(Q0)[:, 0]
+            for f, vals in zip(fs, (self.rho_cell, self.lam_cell, self.mu_cell)):
+                compat.function_array(f)[q0dofs] = vals
+                compat.scatter_forward(f)
+            self._coefficients = fs
+        return self._coefficients
 
     def _bulk_facets(self):
         """Local indices of the interior facets that carry the bulk upwind flux."""
@@ -367,7 +390,6 @@ class Solver:
         btags, free_tag = boundary_tags(mesh, facet_tags=self.facet_tags, bcs=self.bcs)
         ds = compat.measure("ds", mesh, btags)
         n = ufl.FacetNormal(mesh)
-        rho, lam, mu = self.rho, self.lam, self.mu
 
         self._mass_factors()
         self._M = None
@@ -383,6 +405,7 @@ class Solver:
             self.account = EnergyAccount(self, ds, free_tag, n)
             return
 
+        rho, lam, mu = self.rho, self.lam, self.mu
         a_bulk = ef.volume(U, W, dx) + ef.interior_flux(U, W, rho, lam, mu, dS(BULK_FACET))
         a_bdry = None
         homog = {"traction": 0.0, "velocity": 0.0, "state": (0.0, 0.0)}
@@ -437,8 +460,11 @@ class Solver:
 
     def _registers(self):
         """Work vectors of the scheme: 2 (low-storage, ADER: the integral and its rate), or
-        the stages + 2."""
-        return 2 if self.scheme in LOW_STORAGE or self.scheme == ADER else num_stages(self.scheme) + 2
+        the stages and the stage input, and with the assembled operator one more (its energy
+        forms use the last two: :meth:`EnergyAccount.energies`)."""
+        if self.scheme in LOW_STORAGE or self.scheme == ADER:
+            return 2
+        return num_stages(self.scheme) + (1 if self.matfree is not None else 2)
 
     def _boundary_facets(self, btags):
         """The exterior facets of the owned cells, and the boundary condition of each (None:
@@ -578,11 +604,16 @@ class Solver:
     def num_stages(self):
         return num_stages(self.scheme, self.degree)
 
+    @property
+    def state0(self):
+        """The uniform initial state (v = 0, sigma0) of a node, (5,)."""
+        s = self.sigma0
+        return np.array([0.0, 0.0, s[0, 0], s[1, 1], s[0, 1]])
+
     def state0_array(self):
         """Nodal array (ndofs_local_with_ghosts, 5) of the initial uniform state (v=0, sigma0)."""
-        s = self.sigma0
-        n = compat.function_array(self.account.u).size // ef.NCOMP
-        return np.tile([0.0, 0.0, s[0, 0], s[1, 1], s[0, 1]], (n, 1))
+        own, ghosts = compat.dof_counts(self.V)[:2]
+        return np.tile(self.state0, (own + ghosts, 1))
 
     def set_initial_state(self, func=None, by_cell=False):
         """Set U from ``func(x (3,m)) -> (5,m)`` (nodal interpolation), default the
@@ -592,7 +623,7 @@ class Solver:
         constant per cell: use it for data that jump across a crack or a material
         interface, where a node on the facet belongs to both sides.
         """
-        arr = self.state0_array()
+        arr = s0 = self.state0_array()
         if func is not None:
             X = compat.dof_coordinates(self.V).T
             if by_cell:
@@ -603,10 +634,13 @@ class Solver:
             arr = np.asarray(func(X), dtype=float).T.copy()
         with self.x.localForm() as xl:
             xl.array[:] = arr.reshape(-1)
-        self.x0 = self.x_like()
-        with self.x0.localForm() as xl:
-            xl.array[:] = self.state0_array().reshape(-1)
-        kin, strain = self.energies()
+        if self.matfree is None:  # (the matrix-free energy kernel subtracts state0 itself)
+            self.x0 = self.x_like()
+            with self.x0.localForm() as xl:
+                xl.array[:] = s0.reshape(-1)
+        # the energies are those of x - x0: exactly 0 at the uniform initial state (no pass, no
+        # reduction; a remesh starts every new solver there before the transfer)
+        kin, strain = self.energies() if func is not None else (0.0, 0.0)
         self.energy = EnergyBudget(kinetic=kin, strain=strain, initial=kin + strain)
         self.account.last_rates = None
 
