@@ -320,7 +320,52 @@ class Adaptivity:
         return {"adaptive_refines": self.refines, "adaptive_coarsens": self.coarsens, "adapt_checks": self.checks}
 
 
-class AdaptDriver:
+class RemeshDriver:
+    """What every ``remesh`` hook of :func:`hydrofrac.run.run` that builds new problems shares
+    (:class:`AdaptDriver`, :class:`hydrofrac.growth.GrowthDriver`): ``build(what) -> Problem``
+    with what :meth:`_mesh_args` gives, the log of meshes, and the adoption of a new problem
+    (fields and state carried over, the old mesh kept).
+
+    Old meshes live as long as the driver: freeing a DOLFINx 0.5 mesh (with its function
+    spaces) while the run goes on corrupted memory, found by bisection (a later numpy write
+    crashed; the cause inside DOLFINx/petsc4py is not pinned down), and the run's writers hold
+    the first mesh's communicator.  A mesh is small next to the fields and operators, which
+    are freed."""
+
+    def _mesh_args(self):
+        raise NotImplementedError
+
+    def _build(self):
+        problem = self.build(self._mesh_args())
+        problem.growth = self  # run() remeshes a problem through its driver
+        return problem
+
+    def _log_mesh(self):
+        """Record the current mesh: the time it starts at, its cells and its time step (a step
+        that falls tells which remesh made small cells)."""
+        s = getattr(self.problem, "solver", None)
+        if s is not None:
+            self.meshes.append((float(s.t), int(s.num_cells), float(s.dt)))
+
+    @property
+    def solver(self):
+        return self.problem.solver
+
+    @property
+    def iface(self):
+        return self.problem.interface
+
+    def _adopt(self, problem, new):
+        """Make ``new`` (built on the new mesh) the current problem: fields and interface state
+        carried over from ``problem``, the old mesh kept alive, the mesh logged."""
+        self._old_meshes.append(problem.solver.mesh)
+        carry_over(problem, new)
+        self.problem = new
+        self._log_mesh()
+        return new
+
+
+class AdaptDriver(RemeshDriver):
     """Adaptive remeshing of a fixed geometry as a ``remesh`` hook of :func:`hydrofrac.run.run`.
 
     ``build(refinements) -> Problem`` meshes the scene with the given
@@ -333,9 +378,7 @@ class AdaptDriver:
         self.adapt = Adaptivity(params)
         self.count = 0
         self.meshes = []  # (t, cells, dt)
-        # old meshes live as long as the driver: the run's writers hold the first mesh's
-        # communicator, and freeing a DOLFINx 0.5 mesh mid-run is unsafe (growth.GrowthDriver)
-        self._old_meshes = []
+        self._old_meshes = []  # (RemeshDriver)
         self.last_criterion_s = 0.0
         self.problem = self._build()
         self._log_mesh()
@@ -352,14 +395,8 @@ class AdaptDriver:
     def coarsens(self):
         return self.adapt.coarsens
 
-    def _build(self):
-        problem = self.build(self.adapt.refinements())
-        problem.growth = self  # run() remeshes a problem through its hook
-        return problem
-
-    def _log_mesh(self):
-        s = self.problem.solver
-        self.meshes.append((float(s.t), int(s.num_cells), float(s.dt)))
+    def _mesh_args(self):
+        return self.adapt.refinements()
 
     def __call__(self, problem):
         solver = problem.solver
@@ -374,12 +411,8 @@ class AdaptDriver:
         except Exception:
             self.adapt.undo(why)
             raise
-        self._old_meshes.append(solver.mesh)
-        carry_over(problem, new)
-        self.problem = new
         self.count += 1
-        self._log_mesh()
-        return new
+        return self._adopt(problem, new)
 
     # ------------------------------------------------------------ checkpoints and report
     def checkpoint_state(self):

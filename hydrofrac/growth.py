@@ -24,6 +24,7 @@ from mpi4py import MPI
 
 from . import riemann as rm
 from ._jit import njit
+from .adapt import RemeshDriver
 from .material import ROCK
 from .probes import stresses_at
 
@@ -524,7 +525,7 @@ def _record_json(data: dict) -> str:
         return "[\n  " + ",\n  ".join(one(x) for x in v) + "\n ]" if isinstance(v, list) and v else one(v)
     return "{\n" + ",\n".join(f" {one(k)}: {entry(v)}" for k, v in data.items()) + "\n}\n"
 
-class GrowthDriver:
+class GrowthDriver(RemeshDriver):
     """Free crack growth with remeshing, as a ``remesh`` hook of :func:`hydrofrac.run.run`.
 
     ``build((paths, tags)) -> Problem`` meshes the scene with the growth paths (polylines
@@ -587,11 +588,7 @@ class GrowthDriver:
         self.modes = []  # per event: (mode mixity [deg], the crack carried load), :meth:`_tip_mode`
         self.tree = []  # growth events with parent and child tips (growth.json's "tree")
         self.arrested = {}  # tip index -> (point, unit tangent of the crack it met)
-        # Old meshes are kept until the driver goes: freeing a DOLFINx 0.5 mesh (with its
-        # function spaces) while the run goes on corrupted memory, found by bisection (a
-        # later numpy write crashed); the cause inside DOLFINx/petsc4py is not pinned down.
-        # A mesh is small next to the fields and operators, which are freed.
-        self._old_meshes = []
+        self._old_meshes = []  # (kept until the driver goes: RemeshDriver)
         for i, tip in enumerate(self.tips):  # a tip that starts on a crack is arrested there
             for line in self.obstacles:
                 if min(np.linalg.norm(line[0] - tip.point), np.linalg.norm(line[-1] - tip.point)) < 1e-9:
@@ -607,25 +604,8 @@ class GrowthDriver:
         self.problem = self._build()
         self._log_mesh()
 
-    def _build(self):
-        problem = self.build(self._polylines())
-        problem.growth = self  # run() remeshes a problem through its driver
-        return problem
-
-    def _log_mesh(self):
-        """Record the current mesh: the time it starts at, its cells and its time step (a step
-        that falls tells which extension made small cells)."""
-        s = getattr(self.problem, "solver", None)
-        if s is not None:
-            self.meshes.append((float(s.t), int(s.num_cells), float(s.dt)))
-
-    @property
-    def solver(self):
-        return self.problem.solver
-
-    @property
-    def iface(self):
-        return self.problem.interface
+    def _mesh_args(self):
+        return self._polylines()
 
     def _polylines(self):
         keep = [i for i, p in enumerate(self.paths) if len(p) > 1]
@@ -789,13 +769,8 @@ class GrowthDriver:
         return self._adopt(problem, new)
 
     def _adopt(self, problem, new):
-        """Make ``new`` (built on the new mesh) the current problem: fields and interface state
-        carried over from ``problem``, the old mesh kept alive, the mesh logged and recorded."""
-        from .adapt import carry_over
-        self._old_meshes.append(problem.solver.mesh)
-        carry_over(problem, new)
-        self.problem = new
-        self._log_mesh()
+        """:meth:`RemeshDriver._adopt`, and the paths recorded (``record``)."""
+        super()._adopt(problem, new)
         self.write()
         return new
 
