@@ -104,13 +104,20 @@ def build_mesh(comm: MPI.Comm, build: Callable, name: str = "model", out: Option
     ------
     RuntimeError on every rank if the geometry or the meshing fails.
     """
+    return _meshed(comm, build, name, out, gdim, verbose,
+                   lambda gmsh: compat.gmsh_model_to_mesh(gmsh.model, comm, rank=0, gdim=gdim))
+
+
+def _meshed(comm, build, name, out, gdim, verbose, then):
+    """``then(gmsh)`` on every rank after rank 0 meshed ``build``'s geometry (the model
+    removed after it); RuntimeError on every rank if the geometry or the meshing fails."""
     with gmsh_session(comm) as gmsh:
         error = _mesh_on_root(gmsh, name, build, gdim, out, verbose) if comm.rank == 0 else None
         error = comm.bcast(error, root=0)
         try:
             if error is not None:
                 raise RuntimeError(error)
-            return compat.gmsh_model_to_mesh(gmsh.model, comm, rank=0, gdim=gdim)
+            return then(gmsh)
         finally:
             if comm.rank == 0:
                 gmsh.model.remove()
@@ -138,13 +145,4 @@ def mesh_arrays(comm: MPI.Comm, build: Callable, capture: Callable, name: str = 
     arrays; None on the other ranks), for :func:`hydrofrac.compat.mesh_from_arrays` to
     distribute without reading the Gmsh model again.  Raises RuntimeError on every rank if the
     geometry or the meshing fails."""
-    with gmsh_session(comm) as gmsh:
-        error = _mesh_on_root(gmsh, name, build, gdim, out, verbose) if comm.rank == 0 else None
-        error = comm.bcast(error, root=0)
-        try:
-            if error is not None:
-                raise RuntimeError(error)
-            return capture(gmsh) if comm.rank == 0 else None
-        finally:
-            if comm.rank == 0:
-                gmsh.model.remove()
+    return _meshed(comm, build, name, out, gdim, verbose, lambda gmsh: capture(gmsh) if comm.rank == 0 else None)
