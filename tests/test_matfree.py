@@ -240,3 +240,25 @@ def test_reference_data_is_made_once_per_element():
     assert again is not fresh
     assert all(np.array_equal(x, y) for x, y in zip(again, fresh))
     assert Solver(exact.unit_square(4, comm=comm)[0], 3, ROCK).matfree.S0.shape == (10, 10)
+
+
+def test_matrix_free_set_up_builds_only_what_it_uses():
+    """A matrix-free solver (every remesh makes one) builds no DG0 material Functions, no x0
+    vector and no energy pass at its uniform initial state (docs/benchmarks.md, "The solver
+    builds only what the run uses"); a form that asks for rho, lambda or mu gets them, per
+    cell, and the energies subtract the uniform state as x - x0 did."""
+    comm = MPI.COMM_WORLD
+    s = Solver(exact.unit_square(4, comm=comm)[0], 2, ROCK, sigma0=((-2e6, 3e5), (3e5, -1e6)))
+    assert s._coefficients is None and not hasattr(s, "x0")
+    assert len(s._work) == s.num_stages + 1
+    assert s.energy.kinetic == 0.0 and s.energy.strain == 0.0
+    rho = compat.function_array(s.rho)
+    q0 = compat.cell_dofs(s.rho.function_space)[:, 0]
+    assert np.array_equal(rho[q0], s.rho_cell) and np.array_equal(compat.function_array(s.mu)[q0], s.mu_cell)
+    # a perturbation d of the initial state has the energies of d on its own (no initial stress)
+    a = Solver(exact.unit_square(4, comm=comm)[0], 2, ROCK)
+    for solver in (s, a):
+        with solver.x.localForm() as xl:
+            xl.array[:] += 1e4 * np.sin(np.arange(xl.array.size))
+    assert np.allclose(s.energies(), a.energies(), rtol=1e-9, atol=0)
+    assert min(s.energies()) > 0
