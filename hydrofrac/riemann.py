@@ -7,6 +7,10 @@ per Gauss point.  The vectorised functions below (``bonded``, ``slip``, ``combin
 ``eta_regularized``, ...) apply the same point functions to arrays: arrays of shape
 ``(N, 2)`` hold per-point vectors in the local interface frame, column 0 = normal
 component (index 1 in the paper), column 1 = tangential component (index 2).
+The point functions are compiled without the fast-math flags (``njit(exact=True)``), as the
+kernels that inline them are: with the flags, the inlined code could still be contracted
+differently in a run that compiles the kernels and in one that loads them from numba's cache
+(docs/benchmarks.md, "Runs that compile the interface kernels").
 Impedances ``Z`` are ``(N, 2)`` arrays ``[rho c_d, rho c_s]`` per side.
 
 Sign conventions (model.md §2): ``n`` points from side + to side -, tractions
@@ -22,19 +26,19 @@ from ._jit import njit, vectorize
 # --------------------------------------------------------------------------
 # Point functions: the formulas (scalars; per component where they decouple)
 # --------------------------------------------------------------------------
-@njit
+@njit(exact=True)
 def macaulay_pt(x):
     """<x> = max(x, 0)."""
     return x if x > 0.0 else 0.0
 
 
-@njit
+@njit(exact=True)
 def sign_pt(x):
     """sign(x) with sign(0) = 0 (as numpy)."""
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
 
 
-@njit
+@njit(exact=True)
 def bonded_pt(vp, vm, sp, sm, Zp, Zm):
     """Bonded / stick solution of one component (eq. 5): returns (s_B, v_B)."""
     Zsum = Zp + Zm
@@ -43,7 +47,7 @@ def bonded_pt(vp, vm, sp, sm, Zp, Zm):
     return s, v
 
 
-@njit
+@njit(exact=True)
 def bonded_jump_pt(jv, js, Zp, Zm):
     """:func:`bonded_pt` as corrections to each side's trace, from the jumps
     [v] = v- - v+ and [s] = s- - s+ of one component: returns
@@ -58,7 +62,7 @@ def bonded_jump_pt(jv, js, Zp, Zm):
 BOUNDARY_KINDS = {"traction": 0, "velocity": 1, "state": 2}
 
 
-@njit
+@njit(exact=True)
 def boundary_pt(kind, v, s, Z, V, S):
     """Riemann problem between an interior trace (v, s) of one component and an outer
     condition (forms.elastodynamics.outer_riemann_component): returns the corrections
@@ -72,58 +76,58 @@ def boundary_pt(kind, v, s, Z, V, S):
     return ds, dv
 
 
-@njit
+@njit(exact=True)
 def separation_pt(vp, vm, sp, sm, Zp, Zm, S):
     """Prescribed traction S on one component (eq. 4): returns (S, v+, v-), each side's
     velocity from its own characteristic."""
     return S, vp + (S - sp) / Zp, vm - (S - sm) / Zm
 
 
-@njit
+@njit(exact=True)
 def friction_traction_pt(k, sB_n, sB_t):
     """Coulomb slip traction k <-s_B^1> sign(s_B^2) (slip along the stick predictor)."""
     return k * macaulay_pt(-sB_n) * sign_pt(sB_t)
 
 
-@njit
+@njit(exact=True)
 def stick_pt(k, sB_n, sB_t):
     """gamma = 1 (stick) if |s_B^2| <= k <-s_B^1>, else 0 (slip)."""
     return 1.0 if abs(sB_t) <= k * macaulay_pt(-sB_n) else 0.0
 
 
-@njit
+@njit(exact=True)
 def mode_weights_pt(D, eta, gamma):
     """Fractions (a_B, a_SL, a_S) of bonded(+stick), slip and separation (eqs. 6-7)."""
     return 1.0 - D + D * eta * gamma, D * eta * (1.0 - gamma), D * (1.0 - eta)
 
 
-@njit
+@njit(exact=True)
 def weighted_pt(aB, aSL, aS, xB, xSL, xS):
     """The damage-model combination of one target value (eqs. 6-7)."""
     return aB * xB + aSL * xSL + aS * xS
 
 
-@njit
+@njit(exact=True)
 def reduced_impedance_pt(Zp, Zm):
     """Z~ = 2 Z+ Z- / (Z+ + Z-) (eq. 12)."""
     return 2.0 * Zp * Zm / (Zp + Zm)
 
 
-@njit
+@njit(exact=True)
 def penalty_traction_pt(kappa, delta_n):
     """Normal traction of the penalty baseline (contact by interpenetration, no Riemann
     contact mode): -kappa <-delta> [Pa], added to S^1."""
     return -kappa * macaulay_pt(-delta_n)
 
 
-@njit
+@njit(exact=True)
 def separation_jump_pt(sB_n, S_n, Zt_n):
     """Normal velocity jump of the separation mode, [[v_S^1]] = (2 / Z~^1)(s_B^1 - S^1)
     (eqs. 11-12)."""
     return 2.0 / Zt_n * (sB_n - S_n)
 
 
-@njit
+@njit(exact=True)
 def effective_stress_pt(sB_n, sB_t, beta):
     """s_eff = sqrt(<s_B^1>^2 + (beta |s_B^2|)^2)."""
     a = macaulay_pt(sB_n)
@@ -131,14 +135,14 @@ def effective_stress_pt(sB_n, sB_t, beta):
     return np.sqrt(a * a + b * b)
 
 
-@njit
+@njit(exact=True)
 def target_damage_pt(s_eff, s_onset, s_bar):
     """D_t: 0 below the onset, linear up to the strength s_bar, then 1."""
     x = (s_eff - s_onset) / (s_bar - s_onset)
     return min(max(x, 0.0), 1.0)
 
 
-@njit
+@njit(exact=True)
 def damage_rate_pt(D, D_t, tau, a):
     """dD/dt = (1 - exp(-a <D_t - D>)) / tau for D < 1, else 0 (eq. 8)."""
     if D >= 1.0:
@@ -146,13 +150,13 @@ def damage_rate_pt(D, D_t, tau, a):
     return (1.0 - np.exp(-a * macaulay_pt(D_t - D))) / tau
 
 
-@njit
+@njit(exact=True)
 def smoothstep_pt(x):
     x = min(max(x, 0.0), 1.0)
     return x * x * (3.0 - 2.0 * x)
 
 
-@njit
+@njit(exact=True)
 def eta_regularized_pt(delta_n, w_n, delta0, w0):
     """Regularised contact fraction eta = r(delta') q(w') (model.md §4, fig. 4).
 
@@ -163,20 +167,20 @@ def eta_regularized_pt(delta_n, w_n, delta0, w0):
     return smoothstep_pt(delta_n / delta0) * (1.0 - smoothstep_pt(w_n / w0))
 
 
-@njit
+@njit(exact=True)
 def eta_exact_pt(delta_n, w_n):
     """Unregularised map (fig. 3): contact only when closed and pressed together."""
     return 1.0 if (delta_n <= 0.0 and w_n < 0.0) else 0.0
 
 
-@njit
+@njit(exact=True)
 def _band_depth_integral(u):
     """G at x = 1 - 1/u: G(x) = int_0^x dx' / (1 - r(x')) with 1 - r = (1 - x)^2 (1 + 2x), in
     closed form (partial fractions): G = u/3 + (2/9) ln u + (2/9) ln(3 - 2/u) - 1/3 - (2/9) ln 3."""
     return u / 3.0 + (2.0 / 9.0) * np.log(u) + (2.0 / 9.0) * np.log((3.0 - 2.0 / u) / 3.0) - 1.0 / 3.0
 
 
-@njit
+@njit(exact=True)
 def closing_flow_pt(delta, dxi, band):
     """The opening after a closing increment ``dxi`` < 0 of the free opening (the time integral
     of D [[v_S^1]]) from ``delta``, by the exact flow of d(delta)/d(xi) = 1 - eta with eta =
@@ -207,7 +211,7 @@ def closing_flow_pt(delta, dxi, band):
     return -band * (1.0 - 1.0 / u)
 
 
-@njit
+@njit(exact=True)
 def combine_point(vp_n, vp_t, vm_n, vm_t, sp_n, sp_t, sm_n, sm_t, Zp_n, Zp_t, Zm_n, Zm_t, k, D, eta, S_n, S_t,
                   sB_n, vB_n, sB_t, vB_t):
     """The combined target values at one point (eqs. 6-7), given its bonded solution
@@ -238,14 +242,14 @@ def _points(n, *arrays):
     return [np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=float), (n,))) for a in arrays]
 
 
-@njit
+@njit(exact=True)
 def _bonded_loop(vp, vm, sp, sm, Zp, Zm, s, v):
     for i in range(vp.shape[0]):
         for c in range(2):
             s[i, c], v[i, c] = bonded_pt(vp[i, c], vm[i, c], sp[i, c], sm[i, c], Zp[i, c], Zm[i, c])
 
 
-@njit
+@njit(exact=True)
 def _separation_loop(vp, vm, sp, sm, Zp, Zm, S, s, v_p, v_m):
     for i in range(vp.shape[0]):
         for c in range(2):
@@ -378,17 +382,17 @@ def closing_flow(delta, dxi, band):
     return _closing_flow_u(delta, dxi, band)
 
 
-@njit
+@njit(exact=True)
 def _aB_pt(D, eta, gamma):
     return mode_weights_pt(D, eta, gamma)[0]
 
 
-@njit
+@njit(exact=True)
 def _aSL_pt(D, eta, gamma):
     return mode_weights_pt(D, eta, gamma)[1]
 
 
-@njit
+@njit(exact=True)
 def _aS_pt(D, eta, gamma):
     return mode_weights_pt(D, eta, gamma)[2]
 
