@@ -355,6 +355,19 @@ class RemeshDriver:
     def iface(self):
         return self.problem.interface
 
+    def _adaptive_build(self, problem):
+        """The adaptive check of the current geometry (``self.adapt``, an :class:`Adaptivity`):
+        (the problem built on the new mesh, or None where the indicators ask for none, the
+        check's seconds).  A build that fails undoes the check's new levels."""
+        why, spent = self.adapt.check(problem)
+        if why is None:
+            return None, spent
+        try:
+            return self._build(), spent
+        except Exception:
+            self.adapt.undo(why)
+            raise
+
     def _adopt(self, problem, new):
         """Make ``new`` (built on the new mesh) the current problem: fields and interface state
         carried over from ``problem``, the old mesh kept alive, the mesh logged."""
@@ -403,14 +416,9 @@ class AdaptDriver(RemeshDriver):
         self.last_criterion_s = 0.0
         if not self.adapt.due(solver):
             return None
-        why, self.last_criterion_s = self.adapt.check(problem)
-        if why is None:
+        new, self.last_criterion_s = self._adaptive_build(problem)
+        if new is None:
             return None
-        try:
-            new = self._build()
-        except Exception:
-            self.adapt.undo(why)
-            raise
         self.count += 1
         return self._adopt(problem, new)
 

@@ -777,15 +777,10 @@ class GrowthDriver(RemeshDriver):
     def _adapt_remesh(self, problem):
         """An adaptive check with no crack extension: remesh the same geometry when the
         indicators ask for it (:class:`hydrofrac.adapt.Adaptivity`); the new problem or None."""
-        why, spent = self.adapt.check(problem)
+        new, spent = self._adaptive_build(problem)
         self.last_criterion_s += spent
-        if why is None:
+        if new is None:
             return None
-        try:
-            new = self._build()
-        except Exception:
-            self.adapt.undo(why)
-            raise
         self.adapt_count += 1
         return self._adopt(problem, new)
 
