@@ -26,7 +26,7 @@ from . import riemann as rm
 from ._jit import njit
 from .adapt import RemeshDriver
 from .material import ROCK
-from .probes import stresses_at
+from .probes import fields_at
 
 
 #: trial directions closer than this [deg] to the plane of a crack that a tip met are not
@@ -139,13 +139,22 @@ def effective_stress_profiles(solver, tips, params: GrowthParams):
     c, s = np.cos(ang).ravel(), np.sin(ang).ravel()   # t = (c, s) along the trial plane, n = (-s, c) its normal
     X = P.repeat(theta.size, axis=0) + params.r * np.column_stack([c, s])
     # (each tip's samples located once, while it stays)
-    sg = np.concatenate(stresses_at(solver, np.split(X, len(tips))))
-    sxx, syy, sxy = sg[:, 0, 0], sg[:, 1, 1], sg[:, 0, 1]
-    tr_x, tr_y = -sxx * s + sxy * c, -sxy * s + syy * c  # traction on the plane: sigma n
-    sn = -tr_x * s + tr_y * c
-    st = tr_x * c + tr_y * s
-    seff = rm.effective_stress(np.stack([sn, st], axis=-1), params.beta).reshape(len(tips), theta.size)
-    return [(theta, row) for row in seff]
+    F = np.concatenate(fields_at(solver, np.split(X, len(tips))))
+    seff = np.empty(F.shape[0])
+    _plane_effective_stress(F, c, s, float(params.beta), seff)
+    return [(theta, row) for row in seff.reshape(len(tips), theta.size)]
+
+
+@njit(exact=True)
+def _plane_effective_stress(F, c, s, beta, out):
+    """out[k] = s̆ of the traction sigma n on the plane through sample k along (c, s) (its
+    normal n = (-s, c)), from the fields F[k] = (v_x, v_y, s_xx, s_yy, s_xy); NaN where F is
+    (a point outside the mesh).  One pass, operation for operation the NumPy expressions'."""
+    for k in range(F.shape[0]):
+        sxx, syy, sxy = F[k, 2], F[k, 3], F[k, 4]
+        tr_x = -sxx * s[k] + sxy * c[k]
+        tr_y = -sxy * s[k] + syy * c[k]
+        out[k] = rm.effective_stress_pt(-tr_x * s[k] + tr_y * c[k], tr_x * c[k] + tr_y * s[k], beta)
 
 
 def growth_direction(solver, tip, direction, params: GrowthParams):
