@@ -1,7 +1,15 @@
 """Compilation helpers: numba when it is installed (Debian's python3-numba), plain
-Python otherwise (same results, much slower).  Compiled code is cached next to the
-sources (``__pycache__``), so only the first run after a change pays the compile time."""
+Python otherwise (same results, much slower).  Compiled code is cached in
+``$HYDROFRAC_CACHE/numba-<key>`` (default ``~/.cache/hydrofrac``), the key a hash of every
+compiled module's source (:func:`use_keyed_cache`), so only the first run after a change pays
+the compile time, and no run uses code compiled from older sources."""
 from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+import time
+from pathlib import Path
 
 import numpy as np
 
@@ -11,6 +19,74 @@ except ImportError:  # pragma: no cover - numba is a listed dependency
     numba = None
 
 HAVE_NUMBA = numba is not None
+
+
+def cache_root() -> Path:
+    """The folder of this package's compiled caches: ``$HYDROFRAC_CACHE``, by default
+    ``~/.cache/hydrofrac`` (a per-user folder in the temp dir where the home cannot be
+    written).  A set folder that cannot be made is an error."""
+    d = os.environ.get("HYDROFRAC_CACHE")
+    if d:
+        path = Path(d)
+        path.mkdir(parents=True, exist_ok=True)
+        return path
+    try:
+        path = Path.home() / ".cache" / "hydrofrac"
+        path.mkdir(parents=True, exist_ok=True)
+        return path
+    except (OSError, RuntimeError, KeyError):
+        path = Path(tempfile.gettempdir()) / f"hydrofrac-{os.getuid()}"
+        path.mkdir(parents=True, exist_ok=True)
+        return path
+
+
+def source_key(folder) -> str:
+    """A hash of the sources of the modules in ``folder`` that compile with numba."""
+    h = hashlib.sha256()
+    for f in sorted(Path(folder).glob("*.py")):
+        text = f.read_bytes()
+        if b"numba" in text or b"njit" in text:
+            h.update(f.name.encode() + b"\0" + text + b"\0")
+    return h.hexdigest()[:16]
+
+
+#: numba caches of other sources are removed after this many seconds unused
+STALE_CACHE_S = 7 * 86400
+
+
+def use_keyed_cache(folder) -> None:
+    """Cache numba's compiled functions in a folder keyed by :func:`source_key` of ``folder``
+    (under ``$NUMBA_CACHE_DIR`` if set, else :func:`cache_root`).
+
+    A compiled kernel holds the code of the functions it calls (numba inlines them), but numba's
+    cache checks only the kernel's own file.  A kernel cached before an edit of
+    ``hydrofrac/riemann.py`` would therefore go on running the old formula (seen: the interface
+    kernels kept the point functions' fast-math code after they were made exact).  With the key,
+    an edit of any compiled module compiles every kernel again, once."""
+    if not HAVE_NUMBA:
+        return
+    name = f"numba-{source_key(folder)}"
+    base = os.environ.get("NUMBA_CACHE_DIR", "")
+    if Path(base).name.startswith("numba-"):  # (set by a parent process: its base)
+        base = str(Path(base).parent)
+    base = Path(base) if base else cache_root()
+    path = base / name
+    path.mkdir(parents=True, exist_ok=True)
+    now = time.time()
+    for old in base.glob("numba-*"):  # (the caches of sources long gone)
+        try:
+            if old.name != name and now - old.stat().st_mtime > STALE_CACHE_S:
+                import shutil
+                shutil.rmtree(old, ignore_errors=True)
+        except OSError:
+            pass
+    os.utime(path)
+    # (both: numba re-reads its settings from the environment when that changes)
+    os.environ["NUMBA_CACHE_DIR"] = str(path)
+    numba.config.CACHE_DIR = str(path)
+
+
+use_keyed_cache(Path(__file__).parent)
 
 
 #: floating-point flags of the compiled kernels: reassociation and FMA contraction let

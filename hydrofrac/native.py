@@ -24,10 +24,11 @@ import hashlib
 import os
 import platform
 import subprocess
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from ._jit import cache_root
 
 #: the kernel sets ``HYDROFRAC_KERNELS`` may name
 BACKENDS = ("c", "numba")
@@ -72,29 +73,12 @@ def _identity() -> str:
     return "\n".join([cc, version, platform.machine(), cpu, " ".join(CFLAGS)])
 
 
-def _cache_dir() -> Path:
-    d = os.environ.get("HYDROFRAC_CACHE")
-    if d:
-        path = Path(d)
-        path.mkdir(parents=True, exist_ok=True)  # a set cache that cannot be made is an error
-        return path
-    try:
-        path = Path.home() / ".cache" / "hydrofrac"
-        path.mkdir(parents=True, exist_ok=True)
-        return path
-    except (OSError, RuntimeError, KeyError):  # (no home, or one without write permission: a per-user
-        # folder in the temp dir)
-        path = Path(tempfile.gettempdir()) / f"hydrofrac-{os.getuid()}"
-        path.mkdir(parents=True, exist_ok=True)
-        return path
-
-
 @functools.lru_cache(maxsize=None)
 def _library(defines: tuple) -> ctypes.CDLL:
     source = _SOURCE.read_text()
     flags = list(CFLAGS) + [f"-D{k}={v}" for k, v in defines]
     key = hashlib.sha256("\n".join([source, " ".join(flags), _identity()]).encode()).hexdigest()[:20]
-    lib = _cache_dir() / f"{_SOURCE.stem}_{key}.so"
+    lib = cache_root() / f"{_SOURCE.stem}_{key}.so"
     if not lib.exists():
         tmp = lib.with_name(f"{lib.name}.{platform.node()}.{os.getpid()}.tmp")  # (a cache shared by hosts)
         cmd = [_compiler(), *flags, str(_SOURCE), "-o", str(tmp)]

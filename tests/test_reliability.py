@@ -356,3 +356,27 @@ def test_a_run_that_compiles_the_kernels_ends_as_one_that_loads_them(tmp_path):
     first, second = ((tmp_path / n / "history.csv").read_bytes() for n in ("compiles", "loads"))
     assert len(first.splitlines()) > 15
     assert first == second
+
+
+def test_a_kernel_is_compiled_again_when_a_function_it_calls_changes(tmp_path):
+    """numba inlines the functions a kernel calls, but its cache checks only the kernel's own
+    file: a kernel cached before an edit of a point function it calls (``hydrofrac/riemann.py``
+    for the interface kernels) kept running the old code.  ``hydrofrac._jit.use_keyed_cache``
+    keys the cache by the sources of every compiled module, so the edit compiles it again."""
+    mods = tmp_path / "mods"
+    mods.mkdir()
+    (mods / "low.py").write_text("from hydrofrac._jit import njit\n\n\n@njit\ndef f(x):\n    return x + 1.0\n")
+    (mods / "high.py").write_text("from hydrofrac._jit import njit\nfrom low import f\n\n\n"
+                                  "@njit\ndef g(x):\n    return 2.0 * f(x)\n")
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); from hydrofrac._jit import use_keyed_cache; "
+            "use_keyed_cache(sys.argv[1]); import high; print(high.g(1.0))")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+
+    def g_of_1():
+        return subprocess.run([sys.executable, "-c", code, str(mods)], env=env, capture_output=True, text=True,
+                              check=True, timeout=300).stdout.strip()
+
+    assert g_of_1() == "4.0"
+    assert g_of_1() == "4.0"  # (the second run loads g from the cache)
+    (mods / "low.py").write_text("from hydrofrac._jit import njit\n\n\n@njit\ndef f(x):\n    return x + 2.0\n")
+    assert g_of_1() == "6.0"
