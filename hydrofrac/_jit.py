@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -76,7 +77,6 @@ def use_keyed_cache(folder) -> None:
     for old in base.glob("numba-*"):  # (the caches of sources long gone)
         try:
             if old.name != name and now - old.stat().st_mtime > STALE_CACHE_S:
-                import shutil
                 shutil.rmtree(old, ignore_errors=True)
         except OSError:
             pass

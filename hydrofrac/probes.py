@@ -106,20 +106,6 @@ def fields_at(solver, point_sets) -> list:
     return np.split(vals, np.cumsum(sizes)[:-1]) if sets else []
 
 
-def stress_at(solver, points) -> np.ndarray:
-    """(m, 2, 2) total stress at ``points`` (see :func:`field_at`)."""
-    return _stress(field_at(solver, points))
-
-
-def stresses_at(solver, point_sets) -> list:
-    """:func:`stress_at` of several point sets, with one reduction (:func:`fields_at`)."""
-    return [_stress(f) for f in fields_at(solver, point_sets)]
-
-
-def _stress(f):
-    return np.stack([np.stack([f[:, 2], f[:, 4]], -1), np.stack([f[:, 4], f[:, 3]], -1)], axis=1)
-
-
 def _arc_length(points, line) -> Tuple[np.ndarray, np.ndarray]:
     """Arc length along the polyline ``line`` of the foot of each point, and the distance."""
     a, b = line[:-1], line[1:]
