@@ -22,23 +22,39 @@ except ImportError:  # pragma: no cover - numba is a listed dependency
 HAVE_NUMBA = numba is not None
 
 
+def writable(path: Path) -> bool:
+    """Whether the folder ``path`` exists, or can be made, and a file can be written in it."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path):
+            return True
+    except (OSError, RuntimeError, KeyError):
+        return False
+
+
+def _temp_root() -> Path:
+    return Path(tempfile.gettempdir()) / f"hydrofrac-{os.getuid()}"
+
+
 def cache_root() -> Path:
     """The folder of this package's compiled caches: ``$HYDROFRAC_CACHE``, by default
-    ``~/.cache/hydrofrac`` (a per-user folder in the temp dir where the home cannot be
-    written).  A set folder that cannot be made is an error."""
+    ``~/.cache/hydrofrac``, or a per-user folder in the temp dir where the home cannot be
+    written (a compute node that mounts it read-only).  A set folder that cannot be written
+    is an error."""
     d = os.environ.get("HYDROFRAC_CACHE")
     if d:
-        path = Path(d)
-        path.mkdir(parents=True, exist_ok=True)
-        return path
+        if not writable(Path(d)):
+            raise OSError(f"HYDROFRAC_CACHE={d} cannot be written: set it to a writable folder, or unset it")
+        return Path(d)
     try:
-        path = Path.home() / ".cache" / "hydrofrac"
-        path.mkdir(parents=True, exist_ok=True)
-        return path
-    except (OSError, RuntimeError, KeyError):
-        path = Path(tempfile.gettempdir()) / f"hydrofrac-{os.getuid()}"
-        path.mkdir(parents=True, exist_ok=True)
-        return path
+        home = Path.home() / ".cache" / "hydrofrac"
+    except (RuntimeError, KeyError):  # (no home)
+        home = None
+    if home is not None and writable(home):
+        return home
+    path = _temp_root()
+    path.mkdir(parents=True, exist_ok=True)
+    return path
 
 
 def source_key(folder) -> str:
@@ -70,6 +86,9 @@ def use_keyed_cache(folder) -> None:
     base = os.environ.get("NUMBA_CACHE_DIR", "")
     if Path(base).name.startswith("numba-"):  # (set by a parent process: its base)
         base = str(Path(base).parent)
+    if base and not writable(Path(base) / name):
+        raise OSError(f"NUMBA_CACHE_DIR={os.environ['NUMBA_CACHE_DIR']} cannot be written: set it to a writable "
+                      f"folder, or unset it")
     base = Path(base) if base else cache_root()
     path = base / name
     path.mkdir(parents=True, exist_ok=True)
@@ -80,7 +99,10 @@ def use_keyed_cache(folder) -> None:
                 shutil.rmtree(old, ignore_errors=True)
         except OSError:
             pass
-    os.utime(path)
+    try:
+        os.utime(path)
+    except OSError:
+        pass
     # (both: numba re-reads its settings from the environment when that changes)
     os.environ["NUMBA_CACHE_DIR"] = str(path)
     numba.config.CACHE_DIR = str(path)

@@ -380,3 +380,21 @@ def test_a_kernel_is_compiled_again_when_a_function_it_calls_changes(tmp_path):
     assert g_of_1() == "4.0"  # (the second run loads g from the cache)
     (mods / "low.py").write_text("from hydrofrac._jit import njit\n\n\n@njit\ndef f(x):\n    return x + 2.0\n")
     assert g_of_1() == "6.0"
+
+
+def test_compiled_caches_fall_back_to_the_temp_dir_where_the_home_cannot_be_written(monkeypatch, tmp_path):
+    """A compute node may mount the home read-only: the caches then go to a per-user folder
+    in the temp dir (before, importing hydrofrac failed there).  A cache folder the user set
+    and that cannot be written is an error naming it."""
+    from hydrofrac import _jit
+    home = tmp_path / "home" / ".cache" / "hydrofrac"
+    monkeypatch.delenv("HYDROFRAC_CACHE", raising=False)
+    monkeypatch.setattr(_jit.Path, "home", lambda: tmp_path / "home")
+    monkeypatch.setattr(_jit.tempfile, "tempdir", str(tmp_path / "tmp"))
+    assert _jit.cache_root() == home
+    real = _jit.writable
+    monkeypatch.setattr(_jit, "writable", lambda p: p != home and real(p))
+    assert _jit.cache_root() == tmp_path / "tmp" / f"hydrofrac-{os.getuid()}"
+    monkeypatch.setenv("HYDROFRAC_CACHE", str(home))
+    with pytest.raises(OSError, match="HYDROFRAC_CACHE="):
+        _jit.cache_root()
