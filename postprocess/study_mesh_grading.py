@@ -17,7 +17,7 @@ same problem with the cracks at twice the fine size, ``h_fine`` only where the i
 size of 1 m reached within 0.5 m: the work is counted in DOF·steps summed over the meshes,
 remeshing included in the wall time.  For each adaptive mesh and quantity the study gives the
 work a static graded mesh needs for the same error, over the adaptive work; the 3 cm and
-4.5 cm graded meshes and the 3 cm adaptive one also run with their sizes 3.3 % apart
+4.5 cm graded meshes and the 3 cm adaptive one also run with their sizes 3.3 % and 6.7 % apart
 (:data:`ENSEMBLE`), and the same ratios are taken on the ensembles' means.
 
 A third variant, lower p in the far field, is not supported (one p per mesh).
@@ -51,9 +51,11 @@ CASES = [  # name, h_crack, h_far, adaptive h_fine (None: a static mesh)
 T_END = 1.0e-3
 #: the meshes run again with every size times these factors (h_crack, and h_fine of an adaptive
 #: mesh; h_far kept): the intersection time's error moves by up to 2-3x between such
-#: neighbours, so the equal-error ratios are also taken on the means of each ensemble
-ENSEMBLE = {"graded, h = 3 cm (full size)": (29 / 30, 31 / 30), "graded, h = 4.5 cm": (29 / 30, 31 / 30),
-            "adaptive, h = 3 cm where flagged, 6 cm cracks": (29 / 30, 31 / 30)}
+#: neighbours, so the equal-error ratios are also taken on the means of each ensemble (five
+#: members since stop 44: with three, the ratio's scatter was as large as what it measured)
+_SIZES = (28 / 30, 29 / 30, 31 / 30, 32 / 30)
+ENSEMBLE = {"graded, h = 3 cm (full size)": _SIZES, "graded, h = 4.5 cm": _SIZES,
+            "adaptive, h = 3 cm where flagged, 6 cm cracks": _SIZES}
 
 
 def adaptive_run(problem, t_end, monitor):
@@ -184,7 +186,7 @@ def chart(rows, png):
                 if nb:
                     ax.plot([r["dof_steps"] for r in nb], [abs(r[key]) * scale for r in nb], style[0],
                             color=line.get_color(), alpha=0.4, markersize=4,
-                            label=f"{label}, sizes ±3 %")
+                            label=f"{label}, sizes ±3–7 %")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("work [DOF·steps]")
