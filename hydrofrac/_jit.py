@@ -1,8 +1,8 @@
 """Compilation helpers: numba when it is installed (Debian's python3-numba), plain
 Python otherwise (same results, much slower).  Compiled code is cached in
 ``$HYDROFRAC_CACHE/numba-<key>`` (default ``~/.cache/hydrofrac``), the key a hash of every
-compiled module's source (:func:`use_keyed_cache`), so only the first run after a change pays
-the compile time, and no run uses code compiled from older sources."""
+module's source in the package (:func:`use_keyed_cache`), so only the first run after a change
+pays the compile time, and no run uses code compiled from older sources."""
 from __future__ import annotations
 
 import hashlib
@@ -57,13 +57,14 @@ def cache_root() -> Path:
     return path
 
 
-def source_key(folder) -> str:
-    """A hash of the sources of the modules in ``folder`` that compile with numba."""
+def source_key(*folders) -> str:
+    """A hash of the sources of every module in ``folders``: the compiled ones, and the others
+    too, since numba freezes the values of the globals a compiled function reads (a material
+    constant, a table) into its code."""
     h = hashlib.sha256()
-    for f in sorted(Path(folder).glob("*.py")):
-        text = f.read_bytes()
-        if b"numba" in text or b"njit" in text:
-            h.update(f.name.encode() + b"\0" + text + b"\0")
+    for folder in folders:
+        for f in sorted(Path(folder).glob("*.py")):
+            h.update(f"{Path(folder).name}/{f.name}".encode() + b"\0" + f.read_bytes() + b"\0")
     return h.hexdigest()[:16]
 
 
@@ -71,18 +72,18 @@ def source_key(folder) -> str:
 STALE_CACHE_S = 7 * 86400
 
 
-def use_keyed_cache(folder) -> None:
-    """Cache numba's compiled functions in a folder keyed by :func:`source_key` of ``folder``
+def use_keyed_cache(*folders) -> None:
+    """Cache numba's compiled functions in a folder keyed by :func:`source_key` of ``folders``
     (under ``$NUMBA_CACHE_DIR`` if set, else :func:`cache_root`).
 
     A compiled kernel holds the code of the functions it calls (numba inlines them), but numba's
     cache checks only the kernel's own file.  A kernel cached before an edit of
     ``hydrofrac/riemann.py`` would therefore go on running the old formula (seen: the interface
     kernels kept the point functions' fast-math code after they were made exact).  With the key,
-    an edit of any compiled module compiles every kernel again, once."""
+    an edit of any module of the package compiles every kernel again, once."""
     if not HAVE_NUMBA:
         return
-    name = f"numba-{source_key(folder)}"
+    name = f"numba-{source_key(*folders)}"
     base = os.environ.get("NUMBA_CACHE_DIR", "")
     if Path(base).name.startswith("numba-"):  # (set by a parent process: its base)
         base = str(Path(base).parent)
@@ -108,7 +109,20 @@ def use_keyed_cache(folder) -> None:
     numba.config.CACHE_DIR = str(path)
 
 
-use_keyed_cache(Path(__file__).parent)
+def _package_folders():
+    """The package's folders: ``hydrofrac/`` and those its subpackages map to (``meshes/``,
+    ``postprocess/``, ... at the top of a checkout)."""
+    import importlib.util
+    out = [Path(__file__).parent]
+    for name in ("hydrofrac.forms", "hydrofrac.meshes", "hydrofrac.postprocess"):
+        spec = importlib.util.find_spec(name)  # (without importing it)
+        out += [Path(p) for p in (spec.submodule_search_locations or ())] if spec is not None else []
+    return out + [p / "baselines" for p in out if (p / "baselines").is_dir()]
+
+
+#: the folders whose modules key the cache
+SOURCES = _package_folders()
+use_keyed_cache(*SOURCES)
 
 
 #: floating-point flags of the compiled kernels: reassociation and FMA contraction let

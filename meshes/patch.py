@@ -24,6 +24,7 @@ from typing import Dict, Optional, Sequence, Tuple
 import numpy as np
 from mpi4py import MPI
 
+from hydrofrac import _jit  # noqa: F401  (numba's cache keyed by the sources, before the functions below)
 from hydrofrac import compat
 
 try:

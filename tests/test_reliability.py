@@ -382,6 +382,46 @@ def test_a_kernel_is_compiled_again_when_a_function_it_calls_changes(tmp_path):
     assert g_of_1() == "6.0"
 
 
+def test_a_kernel_is_compiled_again_when_a_constant_it_reads_changes(tmp_path):
+    """numba freezes the value of a global a kernel reads (a material constant) into its code:
+    an edit of the module that defines it, which compiles nothing itself, compiles the kernel
+    again too (the key hashes every module of the package)."""
+    mods = tmp_path / "mods"
+    mods.mkdir()
+    (mods / "const.py").write_text("K = 1.0\n")
+    (mods / "high.py").write_text("from hydrofrac._jit import njit\nfrom const import K\n\n\n"
+                                  "@njit\ndef g(x):\n    return K * x\n")
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); from hydrofrac._jit import use_keyed_cache; "
+            "use_keyed_cache(sys.argv[1]); import high; print(high.g(2.0))")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+
+    def g_of_2():
+        return subprocess.run([sys.executable, "-c", code, str(mods)], env=env, capture_output=True, text=True,
+                              check=True, timeout=300).stdout.strip()
+
+    assert g_of_2() == "2.0"
+    assert g_of_2() == "2.0"  # (from the cache)
+    (mods / "const.py").write_text("K = 3.0\n")
+    assert g_of_2() == "6.0"
+
+
+def test_the_mesh_modules_compile_into_the_keyed_cache(tmp_path):
+    """``meshes/patch.py`` (``hydrofrac.meshes.patch``) compiles with numba too: its compiled
+    functions go to the keyed cache, whatever was imported first, and its source is part of
+    the key.  (Imported alone, it used to cache beside its source, in ``meshes/__pycache__``.)"""
+    from hydrofrac import _jit
+    import hydrofrac.meshes
+    assert Path(hydrofrac.meshes.__file__).parent in _jit.SOURCES
+    code = ("from hydrofrac.meshes.patch import SizeLaw; import numpy as np; "
+            "law = SizeLaw(0.05, 1.0, 2.0).sampler({1: np.array([[0.0, 0.0], [1.0, 0.0]])}); "
+            "print(law.scalar_near((0, 0), (1, 1))(0.5, 0.5))")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["HYDROFRAC_CACHE"] = str(tmp_path)
+    subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True, timeout=300)
+    cached = [p.name for p in tmp_path.glob("numba-*/**/*.nbi")]
+    assert any(n.startswith("patch._size_at") for n in cached), cached
+
+
 def test_compiled_caches_fall_back_to_the_temp_dir_where_the_home_cannot_be_written(monkeypatch, tmp_path):
     """A compute node may mount the home read-only: the caches then go to a per-user folder
     in the temp dir (before, importing hydrofrac failed there).  A cache folder the user set
