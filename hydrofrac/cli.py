@@ -224,7 +224,11 @@ def add_adapt_arguments(parser):
 
 
 def check_adapt_arguments(parser, args):
-    """Reject bad adaptive-mesh options before any meshing (exit 2, naming the option)."""
+    """Reject bad adaptive-mesh options before any meshing (exit 2, naming the option), and
+    ``--adapt-tol`` without ``--adapt`` (it would be ignored)."""
+    if args.adapt is None and _given(parser, args, "adapt_tol"):
+        parser.error("--adapt-tol sets the refinement threshold of adaptive meshes: give --adapt H_FINE too, "
+                     "or drop --adapt-tol")
     if args.adapt is not None and not 0 < args.adapt < 1.0:
         parser.error(f"--adapt must be a size in (0, 1) m; got {args.adapt}")
     if not args.adapt_tol > 0:
@@ -248,9 +252,22 @@ def check_mesh_size_arguments(parser, args):
             parser.error(f"--{key.replace('_', '-')} must be in (0, 1) m; got {v}")
 
 
+def _given(parser, args, prefix):
+    """The options starting with ``prefix`` (as dest names) whose values are not the parser's
+    defaults: the ones the user gave (or gave their default value, which changes nothing)."""
+    return sorted(k for k in vars(args) if k.startswith(prefix) and getattr(args, k) != parser.get_default(k))
+
+
 def check_growth_arguments(parser, args):
     """Reject bad growth options before any meshing (argparse's error: exit 2, with the fix);
-    a default given by size takes the run's size here."""
+    a default given by size takes the run's size here.  A growth option with ``--premeshed``,
+    which grows nothing, is an error too, not ignored."""
+    if not args.growth:
+        given = _given(parser, args, "growth_")
+        if given:
+            parser.error(f"{', '.join('--' + k.replace('_', '-') for k in given)}: only free growth (--growth) uses "
+                         f"{'this option' if len(given) == 1 else 'these options'}; drop "
+                         f"{'it' if len(given) == 1 else 'them'} or drop --premeshed")
     by_size = getattr(args, "_nucleation_by_size", None)
     if by_size is not None and args.growth_nucleation_cap is None:
         args.growth_nucleation_cap = by_size[1] if args.quick else by_size[0]

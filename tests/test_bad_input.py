@@ -146,6 +146,10 @@ def test_run_end_time_must_be_positive():
     ("intersection", ["--premeshed", "--adapt", "0.03", "--adapt-tol", "-1"], "--adapt-tol"),
     ("refracture", ["--adapt", "-1"], "--adapt"),
     ("refracture", ["--growth", "--adapt", "0.05", "--growth-remesh", "patch"], "--growth-remesh full"),
+    # options that the run would ignore
+    ("intersection", ["--premeshed", "--growth-da", "3"], "--growth-da: only free growth"),
+    ("refracture", ["--premeshed", "--growth-remesh", "full", "--growth-r", "5"], "--growth-r, --growth-remesh"),
+    ("intersection", ["--adapt-tol", "0.1"], "give --adapt H_FINE too"),
 ])
 def test_growth_options_rejected_before_meshing(name, args, word, capsys, tmp_path):
     """Bad growth or mesh options stop a wellbore scenario at once (exit 2) with the option
