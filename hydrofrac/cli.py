@@ -273,6 +273,14 @@ def check_growth_arguments(parser, args):
         args.growth_nucleation_cap = by_size[1] if args.quick else by_size[0]
     if args.growth_remesh is None:  # the scenario's default; adaptive meshes remesh the whole domain
         args.growth_remesh = "full" if getattr(args, "adapt", None) is not None else args._remesh_default
+    if args.growth:  # (an option of one growth mode given with the other)
+        for name, needs, mode in (("growth_cod_window", "growth_direction", "cod"),
+                                  ("growth_cod_relax", "growth_direction", "cod"),
+                                  ("growth_patch_radius", "growth_remesh", "patch")):
+            if _given(parser, args, name) and getattr(args, needs) != mode:
+                why = " (adaptive meshes remesh the whole domain)" if getattr(args, "adapt", None) is not None else ""
+                parser.error(f"--{name.replace('_', '-')} acts only with --{needs.replace('_', '-')} {mode}; "
+                             f"this run has --{needs.replace('_', '-')} {getattr(args, needs)}{why}: drop one of them")
     for name, ok, valid in _GROWTH_CHECKS:
         v = getattr(args, name)
         if v is not None and not ok(v):

@@ -150,6 +150,9 @@ def test_run_end_time_must_be_positive():
     ("intersection", ["--premeshed", "--growth-da", "3"], "--growth-da: only free growth"),
     ("refracture", ["--premeshed", "--growth-remesh", "full", "--growth-r", "5"], "--growth-r, --growth-remesh"),
     ("intersection", ["--adapt-tol", "0.1"], "give --adapt H_FINE too"),
+    ("intersection", ["--growth-direction", "sampled", "--growth-cod-relax", "0.3"], "--growth-cod-relax acts only"),
+    ("refracture", ["--growth-remesh", "full", "--growth-patch-radius", "4"], "--growth-patch-radius acts only"),
+    ("intersection", ["--adapt", "0.05", "--growth-patch-radius", "4"], "adaptive meshes remesh the whole domain"),
 ])
 def test_growth_options_rejected_before_meshing(name, args, word, capsys, tmp_path):
     """Bad growth or mesh options stop a wellbore scenario at once (exit 2) with the option
