@@ -1,7 +1,7 @@
 """Compilation helpers: numba when it is installed (Debian's python3-numba), plain
 Python otherwise (same results, much slower).  Compiled code is cached in
 ``$HYDROFRAC_CACHE/numba-<key>`` (default ``~/.cache/hydrofrac``), the key a hash of every
-module's source in the package (:func:`use_keyed_cache`), so only the first run after a change
+module's source in ``hydrofrac/`` (:func:`use_keyed_cache`), so only the first run after a change
 pays the compile time, and no run uses code compiled from older sources."""
 from __future__ import annotations
 
@@ -80,7 +80,7 @@ def use_keyed_cache(*folders) -> None:
     cache checks only the kernel's own file.  A kernel cached before an edit of
     ``hydrofrac/riemann.py`` would therefore go on running the old formula (seen: the interface
     kernels kept the point functions' fast-math code after they were made exact).  With the key,
-    an edit of any module of the package compiles every kernel again, once."""
+    an edit of any module in ``folders`` compiles every kernel again, once."""
     if not HAVE_NUMBA:
         return
     name = f"numba-{source_key(*folders)}"
@@ -109,19 +109,11 @@ def use_keyed_cache(*folders) -> None:
     numba.config.CACHE_DIR = str(path)
 
 
-def _package_folders():
-    """The package's folders: ``hydrofrac/`` and those its subpackages map to (``meshes/``,
-    ``postprocess/``, ... at the top of a checkout)."""
-    import importlib.util
-    out = [Path(__file__).parent]
-    for name in ("hydrofrac.forms", "hydrofrac.meshes", "hydrofrac.postprocess"):
-        spec = importlib.util.find_spec(name)  # (without importing it)
-        out += [Path(p) for p in (spec.submodule_search_locations or ())] if spec is not None else []
-    return out + [p / "baselines" for p in out if (p / "baselines").is_dir()]
-
-
-#: the folders whose modules key the cache
-SOURCES = _package_folders()
+#: the folder whose modules key the cache: ``hydrofrac/``, whose functions and constants the
+#: kernels inline.  A kernel elsewhere (``meshes/patch.py``, a study in ``postprocess/``) reads
+#: only its own file, which numba's cache checks itself, and ``hydrofrac/``; an edit of the
+#: forms (``forms/``, for FFCx) compiles no kernel again
+SOURCES = [Path(__file__).parent]
 use_keyed_cache(*SOURCES)
 
 
