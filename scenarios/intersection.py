@@ -290,6 +290,9 @@ def main(argv=None, regularized=None):
                      f"--{'regularized' if args.reg else 'unregularized'} for the other one")
     name = name_of(args)
     reg = args.reg = name == "intersection_regularized"
+    if not reg and args.pressure_factor != parser.get_default("pressure_factor"):
+        parser.error(f"--pressure-factor {args.pressure_factor} shapes the regularised pressure factor; the "
+                     "unregularised problem loads a connected crack at once (f_p = 1): drop --pressure-factor")
     cli.check_growth_arguments(parser, args)
     cli.check_mesh_size_arguments(parser, args)
     if not args.ramp > 0:

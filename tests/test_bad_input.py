@@ -153,6 +153,7 @@ def test_run_end_time_must_be_positive():
     ("intersection", ["--growth-direction", "sampled", "--growth-cod-relax", "0.3"], "--growth-cod-relax acts only"),
     ("refracture", ["--growth-remesh", "full", "--growth-patch-radius", "4"], "--growth-patch-radius acts only"),
     ("intersection", ["--adapt", "0.05", "--growth-patch-radius", "4"], "adaptive meshes remesh the whole domain"),
+    ("intersection", ["--unregularized", "--pressure-factor", "local"], "drop --pressure-factor"),
 ])
 def test_growth_options_rejected_before_meshing(name, args, word, capsys, tmp_path):
     """Bad growth or mesh options stop a wellbore scenario at once (exit 2) with the option
