@@ -358,51 +358,49 @@ def test_a_run_that_compiles_the_kernels_ends_as_one_that_loads_them(tmp_path):
     assert first == second
 
 
+def _keyed_modules(tmp_path, files):
+    """Write the modules ``files`` (name -> source) into a folder keyed as ``hydrofrac/`` is
+    (``hydrofrac._jit.use_keyed_cache``); returns (the folder, g(x) as text: ``high.g`` run in a
+    fresh interpreter, with numba's cache in ``tmp_path``)."""
+    mods = tmp_path / "mods"
+    mods.mkdir(exist_ok=True)
+    for name, text in files.items():
+        (mods / name).write_text(text)
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); from hydrofrac._jit import use_keyed_cache; "
+            "use_keyed_cache(sys.argv[1]); import high; print(high.g(float(sys.argv[2])))")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+
+    def g(x):
+        return subprocess.run([sys.executable, "-c", code, str(mods), str(x)], env=env, capture_output=True,
+                              text=True, check=True, timeout=300).stdout.strip()
+    return mods, g
+
+
 def test_a_kernel_is_compiled_again_when_a_function_it_calls_changes(tmp_path):
     """numba inlines the functions a kernel calls, but its cache checks only the kernel's own
     file: a kernel cached before an edit of a point function it calls (``hydrofrac/riemann.py``
     for the interface kernels) kept running the old code.  ``hydrofrac._jit.use_keyed_cache``
-    keys the cache by the sources of every compiled module, so the edit compiles it again."""
-    mods = tmp_path / "mods"
-    mods.mkdir()
-    (mods / "low.py").write_text("from hydrofrac._jit import njit\n\n\n@njit\ndef f(x):\n    return x + 1.0\n")
-    (mods / "high.py").write_text("from hydrofrac._jit import njit\nfrom low import f\n\n\n"
-                                  "@njit\ndef g(x):\n    return 2.0 * f(x)\n")
-    code = ("import sys; sys.path.insert(0, sys.argv[1]); from hydrofrac._jit import use_keyed_cache; "
-            "use_keyed_cache(sys.argv[1]); import high; print(high.g(1.0))")
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
-
-    def g_of_1():
-        return subprocess.run([sys.executable, "-c", code, str(mods)], env=env, capture_output=True, text=True,
-                              check=True, timeout=300).stdout.strip()
-
-    assert g_of_1() == "4.0"
-    assert g_of_1() == "4.0"  # (the second run loads g from the cache)
+    keys the cache by the sources of every module, so the edit compiles it again."""
+    mods, g = _keyed_modules(tmp_path, {
+        "low.py": "from hydrofrac._jit import njit\n\n\n@njit\ndef f(x):\n    return x + 1.0\n",
+        "high.py": "from hydrofrac._jit import njit\nfrom low import f\n\n\n@njit\ndef g(x):\n    return 2.0 * f(x)\n"})
+    assert g(1.0) == "4.0"
+    assert g(1.0) == "4.0"  # (the second run loads g from the cache)
     (mods / "low.py").write_text("from hydrofrac._jit import njit\n\n\n@njit\ndef f(x):\n    return x + 2.0\n")
-    assert g_of_1() == "6.0"
+    assert g(1.0) == "6.0"
 
 
 def test_a_kernel_is_compiled_again_when_a_constant_it_reads_changes(tmp_path):
     """numba freezes the value of a global a kernel reads (a material constant) into its code:
     an edit of the module that defines it, which compiles nothing itself, compiles the kernel
     again too (the key hashes every module of ``hydrofrac/``)."""
-    mods = tmp_path / "mods"
-    mods.mkdir()
-    (mods / "const.py").write_text("K = 1.0\n")
-    (mods / "high.py").write_text("from hydrofrac._jit import njit\nfrom const import K\n\n\n"
-                                  "@njit\ndef g(x):\n    return K * x\n")
-    code = ("import sys; sys.path.insert(0, sys.argv[1]); from hydrofrac._jit import use_keyed_cache; "
-            "use_keyed_cache(sys.argv[1]); import high; print(high.g(2.0))")
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
-
-    def g_of_2():
-        return subprocess.run([sys.executable, "-c", code, str(mods)], env=env, capture_output=True, text=True,
-                              check=True, timeout=300).stdout.strip()
-
-    assert g_of_2() == "2.0"
-    assert g_of_2() == "2.0"  # (from the cache)
+    mods, g = _keyed_modules(tmp_path, {
+        "const.py": "K = 1.0\n",
+        "high.py": "from hydrofrac._jit import njit\nfrom const import K\n\n\n@njit\ndef g(x):\n    return K * x\n"})
+    assert g(2.0) == "2.0"
+    assert g(2.0) == "2.0"  # (from the cache)
     (mods / "const.py").write_text("K = 3.0\n")
-    assert g_of_2() == "6.0"
+    assert g(2.0) == "6.0"
 
 
 def test_the_mesh_modules_compile_into_the_keyed_cache(tmp_path):
