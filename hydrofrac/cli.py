@@ -217,8 +217,8 @@ def add_adapt_arguments(parser):
     from .wellbore import ADAPT_TOL
     parser.add_argument("--adapt", type=float, default=None, metavar="H_FINE",
                         help="adaptive meshes with this fine size [m] (docs/model.md, 'Adaptive meshes'): "
-                             "the cracks at twice it, h_fine where the contact mode or the load changes, where "
-                             "the bulk jumps and at growing tips (full remeshes: not with --growth-remesh patch)")
+                             "the cracks and growing tips at it, the bulk fine where it jumps and coarse (to 1 m) "
+                             "elsewhere (full remeshes: not with --growth-remesh patch)")
     parser.add_argument("--adapt-tol", type=float, default=ADAPT_TOL,
                         help=f"the bulk jump that asks for refinement, relative to the peak load (default {ADAPT_TOL})")
 

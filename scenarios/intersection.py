@@ -89,7 +89,7 @@ def description(regularized=True, degree=2, quick=False, x_nf=None, tau=30e-6, d
     """The problem as data: ``growth`` (a :class:`hydrofrac.wellbore.Growth`) grows the cracks
     freely; None grows them along the pre-meshed potential paths.  ``adapt`` [m]: adaptive
     meshes with that fine size (:func:`hydrofrac.wellbore.adaptive`; ``h_crack`` and ``h_far``
-    then size the coarse cracks and the far field)."""
+    then size the cracks, by default at the fine size, and the far field)."""
     dom, perfs, nfs, paths = geometry(x_nf=x_nf, quick=quick, nf_tau=nf_tau, h_crack=h_crack, h_far=h_far)
     desc = wellbore.Wellbore(dom, perfs, pressure_history(rise=ramp), fractures=nfs, paths=() if growth else paths,
                              regularized=regularized, degree=degree, damage=DamageParams(tau=tau),
