@@ -137,7 +137,7 @@ class Wellbore:
 
 #: adaptive meshes (docs/benchmarks.md, "Adaptive meshes"): bulk jumps above this share of the
 #: peak load ask for refinement; the far size and the distance it is reached within (0.75 m:
-#: within 0.5 m, Gmsh made small cells at the crack ends, and the time step fell by 20 %;
+#: within 0.5 m, Gmsh made small cells at the crack ends, and the time step fell by 21 %;
 #: docs/benchmarks.md, "Adaptive meshes: the cracks at the fine size")
 ADAPT_TOL, ADAPT_H_FAR, ADAPT_GRADING = 0.2, 1.0, 0.75
 
