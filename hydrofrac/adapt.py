@@ -445,8 +445,16 @@ def carry_over(old, new):
     """Fields, interface state and the derived hydraulic state from problem ``old`` to ``new``
     (a remesh: :mod:`hydrofrac.transfer`)."""
     from .transfer import continue_run, transfer_fields, transfer_interface
+    t0 = time.perf_counter()
     transfer_fields(old.solver, new.solver)
     continue_run(old.solver, new.solver)
     if old.interface is not None and new.interface is not None:
         transfer_interface(old.interface, new.interface)
     new.after_restore()
+    # the remesh's time split (summary.py), summed over the remeshes: the new mesh's parts
+    # (meshes.fractures.fracture_mesh) and this transfer
+    split = new.solver.remesh_split_s
+    fm = getattr(new, "fracture_mesh", None)
+    for part, s in (("meshing", getattr(fm, "meshing_s", 0.0)), ("distribution", getattr(fm, "distribution_s", 0.0)),
+                    ("transfer", time.perf_counter() - t0)):
+        split[part] = split.get(part, 0.0) + s

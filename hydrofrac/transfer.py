@@ -249,8 +249,10 @@ def continue_run(old, new):
     :func:`transfer_fields`); returns the total energy before and after the transfer [J/m]
     (the difference is the transfer's interpolation error)."""
     new.t, new.step_count = old.t, old.step_count
-    # the new solver's own set-up (part of the remesh's time), summed over the remeshes
-    new.remesh_setup_s = getattr(old, "remesh_setup_s", 0.0) + new.timers.t.get("setup", 0.0)
+    # the remeshes' time split so far (hydrofrac.adapt.carry_over adds its parts), with the new
+    # solver's own set-up
+    new.remesh_split_s = dict(getattr(old, "remesh_split_s", {}))
+    new.remesh_split_s["solver set-up"] = new.remesh_split_s.get("solver set-up", 0.0) + new.timers.t.get("setup", 0.0)
     new.timers = old.timers  # one wall-time split for the whole run
     before = old.energy.total
     new.energy = copy.deepcopy(old.energy)

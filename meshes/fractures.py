@@ -23,6 +23,7 @@ Tags (module constants): cells ``ROCK`` = 1; facets ``WELLBORE`` = 1,
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field, replace
 from typing import List, Optional, Sequence, Tuple
 
@@ -119,6 +120,10 @@ class FractureMesh:
     retried: bool = False
     #: a local remesh that spread the cells over the ranks again (meshes/patch.py, REBALANCE_TOLERANCE)
     rebalanced: bool = False
+    #: this rank's seconds: making the arrays (Gmsh on rank 0; the others wait there), and
+    #: making the DOLFINx mesh from them (:func:`fracture_mesh`)
+    meshing_s: float = 0.0
+    distribution_s: float = 0.0
 
 
 def perforation_points(domain: Domain, perf: Perforation):
@@ -314,7 +319,29 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
     mesh the whole domain and say why in ``fallback``.
 
     ``refine`` (:class:`Refinement` objects): finer still near their points (a full remesh only).
+
+    The result's ``meshing_s`` and ``distribution_s`` are this rank's seconds for the arrays
+    (Gmsh on rank 0, the patch's exchanges) and for the DOLFINx mesh made from them.
     """
+    t0 = time.perf_counter()
+    spent = [0.0]
+
+    def made(make_mesh, *args):  # (mesh, cell tags, facet tags) from arrays, timed
+        t = time.perf_counter()
+        try:
+            return make_mesh(*args)
+        finally:
+            spent[0] += time.perf_counter() - t
+    fm = _fracture_mesh(comm, domain, perforations, fractures, paths, out, verbose, path_tags, network, previous,
+                        patch_radius, refine, made)
+    fm.distribution_s = spent[0]
+    fm.meshing_s = time.perf_counter() - t0 - spent[0]
+    return fm
+
+
+def _fracture_mesh(comm, domain, perforations, fractures, paths, out, verbose, path_tags, network, previous,
+                   patch_radius, refine, made):
+    """:func:`fracture_mesh`, with ``made(make_mesh, *args)`` making each DOLFINx mesh."""
     refine = [r for r in refine if len(r.points)]
     if refine and previous is not None:
         raise ValueError("a refinement changes the size field everywhere: mesh the whole domain "
@@ -432,11 +459,11 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
             a = previous.arrays
             local = comm.allreduce(isinstance(a, patch.LocalArrays), op=MPI.LOR)
             old_lines = a.polylines if local else comm.bcast(None if a is None else a.polylines, root=0)
-            mesh, ct, ft = patch.build(comm, a, ROCK)
+            mesh, ct, ft = made(patch.build, comm, a, ROCK)
             previous = FractureMesh(mesh, ct, ft, lines=old_lines, arrays=a, remesh="patch" if local else "full")
         added, removed = patch.new_segments(previous.lines, lines)
         if not added and not removed:  # the same geometry: the same mesh, from the same arrays
-            mesh, ct, ft = patch.build(comm, previous.arrays, ROCK)
+            mesh, ct, ft = made(patch.build, comm, previous.arrays, ROCK)
             arrays = None if previous.arrays is None else replace(previous.arrays, polylines=dict(lines))
             return FractureMesh(mesh, ct, ft, **tags, arrays=arrays, remesh="patch", patch_cells=0)
         local, n_patch, why, stats = None, 0, "a crack segment of the old mesh is gone", {}
@@ -477,16 +504,16 @@ def fracture_mesh(comm, domain: Domain = Domain(), perforations: Sequence[Perfor
             if comm.bcast(better, root=0):
                 why = "the patch made a smaller cell than a full remesh does (a shorter time step)"
         if why is None:
-            mesh, ct, ft = patch.build(comm, local, ROCK)
+            mesh, ct, ft = made(patch.build, comm, local, ROCK)
             return FractureMesh(mesh, ct, ft, **tags, arrays=local, remesh="patch", patch_cells=n_patch,
                                 region_cells=stats["region_cells"], retried=retried,
                                 rebalanced=stats["rebalanced"])
         fallback = why
         if shrinks:  # (the full mesh is made already; its arrays live on rank 0)
-            mesh, ct, ft = distribute(comm, full, ROCK)
+            mesh, ct, ft = made(distribute, comm, full, ROCK)
             return FractureMesh(mesh, ct, ft, **tags, arrays=full, fallback=fallback)
     arrays = mesh_arrays(comm, build, lambda gmsh: capture(gmsh, lines), name="fractures", out=out, verbose=verbose)
-    mesh, ct, ft = distribute(comm, arrays, ROCK)
+    mesh, ct, ft = made(distribute, comm, arrays, ROCK)
     return FractureMesh(mesh, ct, ft, **tags, arrays=arrays, fallback=fallback)
 
 

@@ -127,6 +127,13 @@ def test_crack_growth_scenario_on_one_and_two_ranks(tmp_path, run_command, mpiru
     assert r["remeshes"] == acc["remeshes"] and 0 < r["share"] < 1
     # the new solvers' set-up is part of each remesh
     assert 0 < r["solver_setup_per_remesh_s"] < r["per_remesh_s"] == pytest.approx(r["wall_s"] / r["remeshes"])
+    # and so are the new mesh's arrays (Gmsh), its distribution and the transfer: every part is
+    # timed, and the named parts and the rest make up the remesh
+    split = r["split_per_remesh_s"]
+    assert set(split) == {"meshing", "distribution", "solver set-up", "transfer", "rest"}
+    assert split["solver set-up"] == r["solver_setup_per_remesh_s"]
+    assert all(split[k] > 0 for k in ("meshing", "distribution", "solver set-up", "transfer")), split
+    assert sum(split.values()) == pytest.approx(r["per_remesh_s"], rel=1e-9) or split["rest"] == 0, split
     # the criterion's share: its time against the wall time less remeshing
     crit = s[1]["time_split_s"]["growth criterion"]
     assert r["criterion_share_of_steps"] == pytest.approx(crit / (s[1]["wall_time_s"] - r["wall_s"]))
