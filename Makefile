@@ -75,7 +75,7 @@ demo: setup
 	@echo "[demo] ParaView:  paraview --state=$(DEMO_OUT)/figures/$(DEMO).pvsm  (or paraview $(DEMO_OUT)/$(DEMO).pvd)"
 	@echo "[demo] figures:   $(DEMO_OUT)/figures/energy_sequence.png, mesh_sequence.png (one PNG per frame beside them)"
 	@echo "[demo] animation: $(DEMO_OUT)/figures/$(DEMO)_energy.gif"
-	@echo "[demo] charts:    $(DEMO_OUT)/figures/charts.png (pressure, energy budget, crack length, contact modes, opening)"
+	@echo "[demo] charts:    $(DEMO_OUT)/figures/charts.png (pressure, energy budget, crack length, contact modes, opening, where the wall time went)"
 	@echo "[demo] summary:   $(DEMO_OUT)/summary.json, history: $(DEMO_OUT)/history.csv"
 
 # the README gallery from the full-size runs of the paper's problems on 2 ranks (the

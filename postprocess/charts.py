@@ -23,6 +23,10 @@ from the ``cracks`` part of the frames (integrated along the facets, see
   permitted one, −δ / (|δ'₀| δ̃) with each crack's δ̃ (the frames' ``penetration_limit``,
   written from the model parameters, never from the data): above 1 is a violation.
 
+* ``wall_time.png``: where the wall time went (the summary's time split, a remesh's parts
+  apart), with the run's DOF·stages/s and energy-balance error (relative to the initial
+  energy, the work in and the radiated energy).
+
 ``charts.png`` has all of them on one page.  The crossing of the natural fracture
 (``accuracy.intersection_time``) is a dotted line; a load-off interval (p_h
 removed and re-applied) is shaded.
@@ -200,10 +204,38 @@ class Charts:
         self._finish(ax, "−δ / (|δ'₀| δ̃)", "largest penetration vs the permitted one", legend=False)
         ax.legend(fontsize=8, loc="center left", framealpha=0.85)
 
+    def draw_wall_time(self, ax):
+        """Where the wall time went (:func:`rundata.wall_time_parts`), with the run's rate and
+        energy-balance error: how fast and how accurate, on one panel."""
+        s = self.run.summary
+        parts = rundata.wall_time_parts(s)
+        if not s.get("wall_time_s"):
+            self._missing(ax, "no wall time: the run has no summary.json", "where the wall time went")
+            return
+        wall = s["wall_time_s"]
+        names = [k for k, _ in parts][::-1]
+        secs = np.array([v for _, v in parts][::-1])
+        colours = ["C1" if k.startswith("remesh") else "0.6" if k == "not timed" else "C0" for k in names]
+        ax.barh(names, secs, color=colours)
+        for y, v in enumerate(secs):
+            ax.text(v, y, f" {v:.2f} s ({100 * v / wall:.0f} %)", va="center", fontsize=8)
+        ax.set_xlim(0, 1.25 * max(secs.max(), 1e-9))
+        ax.set_xlabel("wall time [s] (the largest rank's, per part)")
+        err = s.get("energy", {}).get("balance_error_relative")
+        rate = s.get("dof_stages_per_s")
+        title = f"where the wall time went: {wall:.1f} s on {s.get('ranks', '?')} rank(s)"
+        if rate:
+            title += f", {rate:.3g} DOF·stages/s"
+        if err is not None:
+            title += f"\nenergy balance error {abs(err):.2g} of the energy put in"
+        ax.set_title(title, fontsize=11)
+        ax.tick_params(axis="y", labelsize=8)
+        ax.grid(alpha=0.3, axis="x")
+
     # -- files
     SINGLE = {"pressure": ("draw_pressure",), "energy_budget": ("draw_energy",),
               "crack_length": ("draw_lengths",), "contact_modes": ("draw_modes",),
-              "opening": ("draw_opening", "draw_penetration")}
+              "opening": ("draw_opening", "draw_penetration"), "wall_time": ("draw_wall_time",)}
 
     def save(self, out: Path, dpi: int = 110) -> List[Path]:
         plt = _pyplot()
@@ -212,7 +244,9 @@ class Charts:
         for name, methods in self.SINGLE.items():
             if name == "pressure" and "p_h" not in self.h:
                 continue
-            if name != "energy_budget" and name != "pressure" and not self.cracks and not (
+            if name == "wall_time" and not self.run.summary.get("wall_time_s"):
+                continue
+            if name not in ("energy_budget", "pressure", "wall_time") and not self.cracks and not (
                     name == "crack_length" and ("network_length" in self.h or "nf_loaded_length" in self.h)):
                 continue
             fig, axes = plt.subplots(len(methods), 1, figsize=(6.4, 3.9 * len(methods)), squeeze=False,
@@ -225,10 +259,12 @@ class Charts:
             fig.savefig(path, dpi=dpi)
             plt.close(fig)
             written.append(path)
-        fig, axes = plt.subplots(3, 2, figsize=(12.5, 11.5))
-        for m, ax in zip(("draw_pressure", "draw_energy", "draw_lengths", "draw_modes", "draw_opening",
-                          "draw_penetration"), axes.ravel()):
-            getattr(self, m)(ax)
+        fig = plt.figure(figsize=(12.5, 15))
+        grid = fig.add_gridspec(4, 2, height_ratios=(1, 1, 1, 0.9))
+        for k, m in enumerate(("draw_pressure", "draw_energy", "draw_lengths", "draw_modes", "draw_opening",
+                               "draw_penetration")):
+            getattr(self, m)(fig.add_subplot(grid[k // 2, k % 2]))
+        self.draw_wall_time(fig.add_subplot(grid[3, :]))
         fig.suptitle(f"{self.run.name}: time series", fontsize=13)
         fig.tight_layout()
         path = out / "charts.png"

@@ -134,6 +134,25 @@ def load_breakpoints(run: Run) -> Optional[Tuple[float, float, float]]:
     return float(t[i_hold]), float(t[at_low[0]]), float(t[at_low[-1]])
 
 
+def wall_time_parts(summary: dict) -> List[Tuple[str, float]]:
+    """Where a run's wall time went, from its summary: (part, seconds) for each entry of the
+    time split (the largest rank's) but the set-up, which is outside the wall time; a remesh's
+    parts (``remeshing.split_per_remesh_s`` times the remeshes) in place of "remesh" where the
+    summary has them; and what no timer covers (the loop, monitors, history), the wall time
+    less the rest.  Largest first; the parts add up to the wall time unless the ranks' largest
+    parts overlap by more than that remainder (it is then 0)."""
+    split = dict(summary.get("time_split_s", {}))
+    split.pop("setup", None)
+    rm = summary.get("remeshing", {})
+    per = rm.get("split_per_remesh_s")
+    if per and "remesh" in split:
+        split.pop("remesh")
+        split.update({f"remesh: {k}": v * rm["remeshes"] for k, v in per.items()})
+    parts = sorted(split.items(), key=lambda kv: -kv[1])
+    wall = float(summary.get("wall_time_s", 0.0))
+    return parts + [("not timed", max(wall - sum(v for _, v in parts), 0.0))]
+
+
 def key_times(run: Run) -> List[float]:
     """Times worth a picture, in the spirit of the paper's sequences.
 

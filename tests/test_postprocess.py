@@ -80,10 +80,23 @@ def test_charts(quick_run, run_python, tmp_path):
     stdout = run_python(["-m", "hydrofrac.postprocess.charts", quick_run, "--out", tmp_path], timeout=300)
     names = {p.name for p in printed_paths(stdout)}
     assert names == {"pressure.png", "energy_budget.png", "crack_length.png", "contact_modes.png", "opening.png",
-                     "charts.png"}
+                     "wall_time.png", "charts.png"}
     for name in names:
         png = tmp_path / name
         assert png.stat().st_size > 0 and colours(png) > 10, f"{name} looks blank"
+
+
+def test_wall_time_parts_add_up_to_the_wall_time():
+    """The wall-time chart's parts: the time split without the set-up, a remesh's parts in place
+    of "remesh" (per remesh times the remeshes), and the untimed rest, adding up to the wall time."""
+    summary = {"wall_time_s": 10.0, "time_split_s": {"setup": 2.0, "bulk operator": 4.0, "remesh": 3.0, "output": 1.0},
+               "remeshing": {"remeshes": 10, "split_per_remesh_s": {"meshing": 0.2, "transfer": 0.05, "rest": 0.05}}}
+    parts = dict(rundata.wall_time_parts(summary))
+    assert parts == pytest.approx({"bulk operator": 4.0, "remesh: meshing": 2.0, "remesh: transfer": 0.5,
+                                   "remesh: rest": 0.5, "output": 1.0, "not timed": 2.0})
+    assert [k for k, _ in rundata.wall_time_parts(summary)][:2] == ["bulk operator", "remesh: meshing"]
+    del summary["remeshing"]  # (a run without remeshes, or an older summary): "remesh" as it is
+    assert dict(rundata.wall_time_parts(summary))["remesh"] == 3.0
 
 
 def test_crack_statistics(quick_run, run_python):
