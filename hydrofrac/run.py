@@ -186,6 +186,7 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
     monitors = list(monitors)
     t_end = float(options.t_end)
     loop = {"remeshes": 0, "work": 0.0}
+    timed = {"remeshes": 0}  # the remeshes of this process, whose time the timers hold
 
     def geometry():
         return remesh.checkpoint_state() if remesh is not None and hasattr(remesh, "checkpoint_state") else ""
@@ -309,6 +310,7 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
                     problem = new
                     solver = problem.solver
                     loop["remeshes"] += 1
+                    timed["remeshes"] += 1
                     # less the criterion's time, which the driver reports itself
                     solver.timers.add("remesh", time.perf_counter() - t0 - getattr(remesh, "last_criterion_s", 0.0))
             good = _snapshot(problem)
@@ -367,7 +369,8 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
                             loop["remeshes"] if remesh is not None else None, accuracy,
                             {"paraview": str(series.pvd_path), "history": str(history_path),
                              "checkpoint": str(ckpt.dir),
-                             **({"probes": str(out / "probes.csv")} if probes is not None else {})})
+                             **({"probes": str(out / "probes.csv")} if probes is not None else {})},
+                            remeshes_timed=timed["remeshes"])
     write_summary(summary, out, comm)
     for m in monitors:
         line = m.report(accuracy)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Dict
+from typing import Dict, Optional
 
 import numpy as np
 
@@ -12,8 +12,10 @@ from . import compat, native
 
 
 def build_summary(problem, name: str, wall: float, work: float, steps_run: int, remesh_info, accuracy: Dict,
-                  outputs: Dict) -> Dict:
-    """The summary dictionary (collective: the time split and unit costs are reduced)."""
+                  outputs: Dict, remeshes_timed: Optional[int] = None) -> Dict:
+    """The summary dictionary (collective: the time split and unit costs are reduced).
+    ``remesh_info``: the run's remeshes; ``remeshes_timed``: those of this process (after a
+    restart, the ones the timers saw; default all), the per-remesh times' divisor."""
     solver, comm = problem.solver, problem.comm
     summary = problem.summary()
     summary.update({
@@ -32,7 +34,8 @@ def build_summary(problem, name: str, wall: float, work: float, steps_run: int, 
                           native.describe() if mf.kernels == "c" else "numba")
     if remesh_info is not None:
         t_rm = solver.timers.t.get("remesh", 0.0)
-        n = max(int(remesh_info), 1)
+        timed = int(remesh_info if remeshes_timed is None else remeshes_timed)
+        n = max(timed, 1)
         # where a remesh's time goes (the largest rank's part; hydrofrac.adapt.carry_over), the
         # rest being the interface, the network, the hydraulics and the growth record
         mine = getattr(solver, "remesh_split_s", {})
@@ -40,7 +43,8 @@ def build_summary(problem, name: str, wall: float, work: float, steps_run: int, 
         split["rest"] = max(t_rm / n - sum(split.values()), 0.0)
         stepping = wall - t_rm
         crit = summary["time_split_s"].get("growth criterion", 0.0)
-        summary["remeshing"] = {"remeshes": remesh_info, "wall_s": t_rm, "share": t_rm / wall if wall > 0 else 0.0,
+        summary["remeshing"] = {"remeshes": remesh_info, "remeshes_timed": timed,
+                                "wall_s": t_rm, "share": t_rm / wall if wall > 0 else 0.0,
                                 "per_remesh_s": t_rm / n, "solver_setup_per_remesh_s": split["solver set-up"],
                                 "split_per_remesh_s": split,
                                 # the growth criterion against the steps' cost (the wall time less remeshing)

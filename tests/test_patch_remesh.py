@@ -281,6 +281,9 @@ def test_local_remeshing_restarts_where_the_straight_run_ends(tmp_path, run_comm
     assert r["steps"] == s["steps"] and r["cells"] == s["cells"]
     for key in ("remeshes", "local_remeshes", "full_remesh_fallbacks", "grown_length"):
         assert r["accuracy"][key] == s["accuracy"][key], key
+    # the restarted run's time per remesh is over the remeshes it timed itself, not the run's
+    assert r["remeshing"]["remeshes_timed"] == s["accuracy"]["remeshes"] - half
+    assert r["remeshing"]["per_remesh_s"] == pytest.approx(r["remeshing"]["wall_s"] / (s["accuracy"]["remeshes"] - half))
     for key in ("kinetic", "strain", "work_in", "balance_error"):
         assert r["energy"][key] == pytest.approx(s["energy"][key], rel=1e-12, abs=1e-12), key
 
