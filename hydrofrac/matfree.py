@@ -699,7 +699,7 @@ class MatrixFreeOperator:
         # the volume, interior facet and ADER kernels in C, in blocks of cells (hydrofrac/native.py)
         # for a cell-contiguous space; otherwise, or with HYDROFRAC_KERNELS=numba, the numba ones
         self.kernels = native.backend() if self.contiguous else "numba"
-        self._cvolume = self._cfacets = self._cader = None  # (ADER's when first used)
+        self._cvolume = self._cfacets = self._cader = self._cenergy = None  # (ADER's when first used)
         if self.kernels == "c":
             nk = self.fnodes.shape[1]
             self._cvolume = native.VolumeKernel(nb, nk, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
@@ -709,6 +709,12 @@ class MatrixFreeOperator:
                                                     bonded_jump_pt)
             self._cfacets = native.FacetKernel(nb, nk, self.dofs.shape[0], self.nowned, self.fcells, self.fcodes,
                                                self.normal, self.length, self.fnodes, self.Mf, coef, pair)
+            # the energy budget's cell energies: the compliance per material, indexed as Btab
+            C = self.Bmat[:self.nowned]
+            ctab = np.zeros((self.Btab.shape[0], 11))
+            ctab[self.mat[:self.nowned]] = np.concatenate([C[:, 0, 0:1], C[:, 1, 1:2], C[:, 2:, 2:].reshape(-1, 9)],
+                                                          axis=1)
+            self._cenergy = native.EnergyKernel(nb, nk, self.nowned, self.Mref, self.absdet, self.mat, ctab)
 
     def set_boundary(self, facets, bc_of, bcs=()):
         """The exterior facets of the owned cells, with the boundary condition of each
@@ -850,6 +856,8 @@ class MatrixFreeOperator:
     def energies(self, xloc, state0):
         """This rank's (kinetic, strain) energy of x less the uniform initial state ``state0``
         (5,) [J/m]."""
+        if self._cenergy is not None:
+            return self._cenergy(xloc, state0)
         return self._energies(xloc, state0, self.dofs, self.nowned, self.Mref, self.absdet, self.Bmat)
 
     def apply(self, xloc, out, t=0.0):

@@ -1,9 +1,10 @@
 """C kernels, compiled at first use with the machine's C compiler (docs/benchmarks.md,
 "Volume kernels in C").
 
-The hot loop of the matrix-free operator, the volume terms with the inverse mass
-the interior facets' upwind fluxes and ADER's corrector (``hydrofrac/volume.c``), run in blocks of cells (facets)
-with the cells in the vector lanes: that is what lets the compiler use the SIMD units, which
+The hot loops of the matrix-free operator (the volume terms with the inverse mass, the
+interior facets' upwind fluxes, ADER's corrector) and the energy budget's cell energies, in
+``hydrofrac/volume.c``, run in blocks
+of cells (facets) with the cells in the vector lanes: that is what lets the compiler use the SIMD units, which
 the numba kernels' cell-by-cell loops do not.  The other kernels stay in numba.
 The compiler is the one DOLFINx already needs for its form compiler (Debian's libdolfinx-dev
 depends on g++); ``$CC`` names another.
@@ -93,7 +94,7 @@ def _library(defines: tuple) -> ctypes.CDLL:
 
 def describe() -> str:
     """The summary's words for the C kernels."""
-    return f"C volume, facet and ADER kernels ({_compiler()} {' '.join(CFLAGS[:2])}, {LANES} cells per block) + numba"
+    return f"C volume, facet, ADER and energy kernels ({_compiler()} {' '.join(CFLAGS[:2])}, {LANES} cells per block) + numba"
 
 
 def _check(name, arrays):
@@ -196,6 +197,33 @@ class FacetKernel:
             raise NativeError(f"the C facet kernel needs the values of all {self._size // 5} nodes, ghosts "
                               f"included; got {X.size // 5}")
         self._fn(R.ctypes.data, X.ctypes.data, self._nf, *self._const, self._nowned)
+
+
+class EnergyKernel:
+    """The C ``cell_energies``: ``kernel(X, X0)`` is the (kinetic, strain) energy of X - X0 on
+    the owned cells (X0: the uniform initial state, 5 values), as the numba kernel computes it
+    for a cell-contiguous space; ``Ctab[mat[c]]`` = rho, rho and the 3x3 compliance block."""
+
+    def __init__(self, nb: int, nk: int, n: int, Mref, absdet, mat, Ctab):
+        self._fn = _function(nb, nk, "cell_energies", [_P, _P, _P, _N, _P, _P, _P, _P])
+        n = int(n)
+        _check("energy", [(Mref, np.float64, (nb, nb)), (absdet, np.float64, None), (mat, np.int32, None),
+                          (Ctab, np.float64, None)])
+        if absdet.shape[0] < n or mat.shape[0] < n or Ctab.shape[1:] != (11,) \
+                or (n and int(mat[:n].max()) >= Ctab.shape[0]):
+            raise NativeError("the C energy kernel's cell data do not cover the owned cells")
+        self._arrays = (Mref, absdet, mat, Ctab)  # (kept alive: the pointers below)
+        self._n, self._size = n, n * nb * 5
+        self._out = np.zeros(2)
+        self._const = tuple(a.ctypes.data for a in self._arrays)
+
+    def __call__(self, X, X0):
+        X0 = np.ascontiguousarray(X0, dtype=np.float64)
+        if X.dtype != np.float64 or not X.flags.c_contiguous or X.size < self._size or X0.shape != (5,):
+            raise NativeError(f"the C energy kernel needs a contiguous float64 array of >= {self._size} values "
+                              f"and the 5 initial values; got {X.dtype} {X.shape} and {X0.shape}")
+        self._fn(self._out.ctypes.data, X.ctypes.data, X0.ctypes.data, self._n, *self._const)
+        return float(self._out[0]), float(self._out[1])
 
 
 def bonded_coefficients(Zpn, Zmn, Zpt, Zmt, bonded_jump_pt):

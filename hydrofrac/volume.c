@@ -207,6 +207,7 @@ void facet_fluxes(double *restrict R, const double *restrict X, long nfacets, co
         }
     }
 }
+
 #endif
 
 /* ADER's corrector and next predictor, in blocks of W cells: what the numba kernel ader_corrector
@@ -294,4 +295,60 @@ void ader_corrector(double *restrict x, double *restrict I, double *restrict R, 
             for (int a = 0; a < NB; a++)
                 for (int k = 0; k < 5; k++) I[5 * (NB * (c0 + l) + a) + k] = acc[a][k][l];
     }
+}
+
+/* The kinetic and strain energy of X - X0 on the owned cells (X0: the uniform initial state, 5
+ * values), in blocks of W cells: what the numba kernel cell_energies in hydrofrac/matfree.py
+ * computes for a cell-contiguous space, 1/2 u^T M_c u with M_c = |det J| Mref kron B (B: rho for
+ * v, the compliance for sigma; Ctab[mat[c]] = rho, rho, the 3x3 compliance block).
+ * out[0], out[1] = kinetic, strain (lane sums, added at the end). */
+void cell_energies(double *restrict out, const double *restrict X, const double *restrict X0, long ncells,
+                   const double *restrict Mref, const double *restrict absdet, const int *restrict mat,
+                   const double *restrict Ctab)
+{
+    double kin[W] = {0}, strain[W] = {0};
+    for (long c0 = 0; c0 < ncells; c0 += W) {
+        const long w = ncells - c0 < W ? ncells - c0 : W;
+        double u[NB][5][W], b[NB][5][W], wt[W];
+        for (long l = 0; l < W; l++) {
+            const long c = c0 + (l < w ? l : 0);
+            const double *B = Ctab + 11 * mat[c];
+            wt[l] = l < w ? absdet[c] : 0.0;
+            for (int j = 0; j < NB; j++) {
+                const double *x = X + 5 * (NB * c + j);
+                const double u0 = x[0] - X0[0], u1 = x[1] - X0[1], u2 = x[2] - X0[2], u3 = x[3] - X0[3],
+                             u4 = x[4] - X0[4];
+                u[j][0][l] = u0;
+                u[j][1][l] = u1;
+                u[j][2][l] = u2;
+                u[j][3][l] = u3;
+                u[j][4][l] = u4;
+                b[j][0][l] = B[0] * u0;
+                b[j][1][l] = B[1] * u1;
+                b[j][2][l] = B[2] * u2 + B[3] * u3 + B[4] * u4;
+                b[j][3][l] = B[5] * u2 + B[6] * u3 + B[7] * u4;
+                b[j][4][l] = B[8] * u2 + B[9] * u3 + B[10] * u4;
+            }
+        }
+        double ek[W] = {0}, es[W] = {0};
+        for (int a = 0; a < NB; a++)
+            for (int j = 0; j < NB; j++) {
+                const double m = Mref[a * NB + j];
+                for (long l = 0; l < W; l++) {
+                    ek[l] += m * (b[a][0][l] * u[j][0][l] + b[a][1][l] * u[j][1][l]);
+                    es[l] += m * (b[a][2][l] * u[j][2][l] + b[a][3][l] * u[j][3][l] + b[a][4][l] * u[j][4][l]);
+                }
+            }
+        for (long l = 0; l < W; l++) {
+            kin[l] += wt[l] * ek[l];
+            strain[l] += wt[l] * es[l];
+        }
+    }
+    double k = 0.0, s = 0.0;
+    for (long l = 0; l < W; l++) {
+        k += kin[l];
+        s += strain[l];
+    }
+    out[0] = 0.5 * k;
+    out[1] = 0.5 * s;
 }
