@@ -1,6 +1,6 @@
 """Matrix-free bulk DG operator: cell-local compiled kernels for the volume terms, the
 upwind (bonded Riemann) flux on interior facets and the closed-form inverse mass (numba here;
-the volume, facet and ADER loops also in C, :mod:`hydrofrac.native`, the default).
+the volume, facet, ADER and cell energy loops also in C, :mod:`hydrofrac.native`, the default).
 
 ``MatrixFreeOperator.apply(x, out)`` computes ``out = M^{-1} (K_vol + K_int) x`` on the
 owned cells, for the same weak form as :mod:`hydrofrac.forms.elastodynamics` (the tests
@@ -696,7 +696,7 @@ class MatrixFreeOperator:
         self._R_clear = True
         self.Mref = r.Mref
         self.Bmat = solver.material_blocks
-        # the volume, interior facet and ADER kernels in C, in blocks of cells (hydrofrac/native.py)
+        # the volume, interior facet, ADER and cell energy kernels in C, in blocks of cells (hydrofrac/native.py)
         # for a cell-contiguous space; otherwise, or with HYDROFRAC_KERNELS=numba, the numba ones
         self.kernels = native.backend() if self.contiguous else "numba"
         self._cvolume = self._cfacets = self._cader = self._cenergy = None  # (ADER's when first used)
