@@ -94,7 +94,8 @@ def _library(defines: tuple) -> ctypes.CDLL:
 
 def describe() -> str:
     """The summary's words for the C kernels."""
-    return f"C volume, facet, ADER and energy kernels ({_compiler()} {' '.join(CFLAGS[:2])}, {LANES} cells per block) + numba"
+    return (f"C volume, facet, ADER and energy kernels ({_compiler()} {' '.join(CFLAGS[:2])}, {LANES} cells per block)"
+            " + numba")
 
 
 def _check(name, arrays):
