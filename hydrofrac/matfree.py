@@ -61,6 +61,12 @@ def _boundary_node(X, i, nx, ny, kn, kt, Zn, Zt, G, f, k):
     return vn, vt, sn, st, dsn, dvn, dst, dvt
 
 
+def _pack_blocks(B):
+    """(cells, 11) rows of the C kernels' per-material tables from (cells, 5, 5) material blocks
+    diag(b_v, b_v) + a 3x3 stress block: b_v twice, then the stress block row by row."""
+    return np.concatenate([B[:, 0, 0:1], B[:, 1, 1:2], B[:, 2:, 2:].reshape(-1, 9)], axis=1)
+
+
 @functools.lru_cache(maxsize=None)
 def _kernels(nb, nk, contig=False):
     """The (volume + inverse mass, interior facet flux, facet dissipation, cell energies)
@@ -645,7 +651,7 @@ class MatrixFreeOperator:
             raise RuntimeError("the matrix-free kernel expects a material block diag(1/rho, 1/rho) + stiffness "
                                "(isotropic density); use operator='assembled' for other materials")
         # one row per distinct material: 1/rho (twice) and the 3x3 stiffness block
-        packed = np.concatenate([B[:, 0, 0:1], B[:, 1, 1:2], B[:, 2:, 2:].reshape(-1, 9)], axis=1)
+        packed = _pack_blocks(B)
         if packed.shape[0] and (packed == packed[0]).all():  # one material: np.unique's answer, without its sort
             table, mat = packed[:1].copy(), np.zeros(packed.shape[0], dtype=np.int64)
         else:
@@ -710,10 +716,8 @@ class MatrixFreeOperator:
             self._cfacets = native.FacetKernel(nb, nk, self.dofs.shape[0], self.nowned, self.fcells, self.fcodes,
                                                self.normal, self.length, self.fnodes, self.Mf, coef, pair)
             # the energy budget's cell energies: the compliance per material, indexed as Btab
-            C = self.Bmat[:self.nowned]
             ctab = np.zeros((self.Btab.shape[0], 11))
-            ctab[self.mat[:self.nowned]] = np.concatenate([C[:, 0, 0:1], C[:, 1, 1:2], C[:, 2:, 2:].reshape(-1, 9)],
-                                                          axis=1)
+            ctab[self.mat[:self.nowned]] = _pack_blocks(self.Bmat[:self.nowned])
             self._cenergy = native.EnergyKernel(nb, nk, self.nowned, self.Mref, self.absdet, self.mat, ctab)
 
     def set_boundary(self, facets, bc_of, bcs=()):

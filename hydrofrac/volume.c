@@ -207,7 +207,6 @@ void facet_fluxes(double *restrict R, const double *restrict X, long nfacets, co
         }
     }
 }
-
 #endif
 
 /* ADER's corrector and next predictor, in blocks of W cells: what the numba kernel ader_corrector
