@@ -5,8 +5,8 @@ The hot loops of the matrix-free operator (the volume terms with the inverse mas
 interior facets' upwind fluxes, ADER's corrector) and the energy budget's cell energies, in
 ``hydrofrac/volume.c``, run in blocks of cells (facets) with the cells in the vector lanes: that
 is what lets the compiler use the SIMD units, which the numba kernels' cell-by-cell loops do not.
-The other kernels stay in numba.  The compiler is the one DOLFINx already needs for its form compiler (Debian's libdolfinx-dev
-depends on g++); ``$CC`` names another.
+The other kernels stay in numba.  The compiler is the one DOLFINx already needs for its form
+compiler (Debian's libdolfinx-dev depends on g++); ``$CC`` names another.
 
 Which kernels run: ``HYDROFRAC_KERNELS`` = ``c`` (the default) or ``numba`` (the numba kernels
 alone).  With ``c``, a compiler that fails is an error that says so; nothing falls back
