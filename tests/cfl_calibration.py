@@ -13,7 +13,9 @@ The largest stable CFL constant C_max of a scheme on a mesh is the largest dt wi
   largest modulus with ARPACK otherwise), traction-free boundary.
 
 Run: ``.venv/bin/python tests/cfl_calibration.py`` (about 10 minutes on 2 cores;
-``--quick``: infinite meshes with a coarse theta grid, about 2 minutes).
+``--quick``: infinite meshes with a coarse theta grid, about 2 minutes; ``--nu -0.5,0.2,0.45``:
+the limits of every Runge-Kutta scheme on the infinite "right" mesh for those Poisson ratios,
+p = 1..4, about 15 minutes for seven ratios).
 """
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ import scipy.sparse.linalg as sla
 from mpi4py import MPI
 
 from hydrofrac import ROCK, compat
+from hydrofrac.material import Material
 from hydrofrac.solver import ADER, ADER_CFL, CFL_DEFAULT, LOW_STORAGE, Solver, num_stages
 
 def low_storage_polynomial(scheme):
@@ -158,7 +161,17 @@ def mesh_eigenvalues(p, N, diagonal="right"):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="infinite meshes only, coarse wave-number grid")
+    parser.add_argument("--nu", help="comma-separated Poisson ratios: the Runge-Kutta limits over them instead")
     args = parser.parse_args()
+    if args.nu:
+        nus = [float(v) for v in args.nu.split(",")]
+        print(f"{'p':>2s} {'nu':>6s}  " + "  ".join(f"C_max {k:>7s}" for k in STABILITY_POLYNOMIAL))
+        for p in (1, 2, 3, 4):
+            for nu in nus:
+                lam = symbol_eigenvalues(p, "right", Material(E=ROCK.E, nu=nu, rho=ROCK.rho, name=f"nu={nu}"))
+                print(f"{p:2d} {nu:6.2f}  " + "  ".join(f"{c_max(lam, k, samples=16000):13.4f}"
+                                                         for k in STABILITY_POLYNOMIAL), flush=True)
+        return
     cases = [("infinite", "right"), ("infinite", "crossed")]
     if not args.quick:
         cases += [(8, "right"), (16, "right")]
