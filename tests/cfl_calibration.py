@@ -164,7 +164,12 @@ def main():
     parser.add_argument("--nu", help="comma-separated Poisson ratios: the Runge-Kutta limits over them instead")
     args = parser.parse_args()
     if args.nu:
-        nus = [float(v) for v in args.nu.split(",")]
+        try:
+            nus = [float(v) for v in args.nu.split(",")]
+        except ValueError:
+            parser.error(f"--nu takes comma-separated numbers, e.g. -0.5,0.2,0.45; got {args.nu!r}")
+        if not all(-1.0 < nu < 0.5 for nu in nus):
+            parser.error(f"--nu: every Poisson ratio must be in (-1, 0.5); got {args.nu!r}")
         print(f"{'p':>2s} {'nu':>6s}  " + "  ".join(f"C_max {k:>7s}" for k in STABILITY_POLYNOMIAL))
         for p in (1, 2, 3, 4):
             for nu in nus:
