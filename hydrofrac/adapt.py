@@ -44,7 +44,7 @@ class Adapt:
     stress_scale : the scene's stress scale [Pa] (e.g. its peak load): jumps are relative to it
     tol : the indicator's threshold (relative jump)
     band : crack points with D or f_p in (band, 1 - band) are a process zone
-    check_every : steps between checks
+    check_every : steps between checks (of rk4 at its documented CFL constant, in time)
     refine_ratio : a cell coarser than this times its target is under-resolved
     refine_fraction : a remesh when more than this share of the cells is under-resolved (any
         cell at a crack process point is enough)
@@ -276,7 +276,10 @@ class Adaptivity:
         return None
 
     def due(self, solver) -> bool:
-        return solver.step_count % int(self.params.check_every) == 0
+        """A check every ``check_every`` steps of rk4 at its documented constant, in time
+        (:func:`hydrofrac.growth.check_interval`: the same interval whatever the scheme)."""
+        from .growth import check_interval
+        return solver.step_count % check_interval(solver, int(self.params.check_every)) == 0
 
     def check(self, problem):
         """Evaluate the indicators (collective); when the mesh no longer fits them, take the new

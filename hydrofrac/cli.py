@@ -17,7 +17,7 @@ from pathlib import Path
 from .growth import BRANCH_SPEED
 from .material import ROCK
 from .run import RunOptions
-from .solver import MAX_DEGREE
+from .solver import ADER, CFL_DEFAULT, MAX_DEGREE, SCHEMES, default_cfl
 
 #: options that do not change the computed result (a restart may change them)
 RUN_ONLY = {"out", "t_end", "frames", "restart", "checkpoint_every", "checkpoint_steps", "verbose", "probes"}
@@ -104,6 +104,32 @@ def run_options(args, history_every: int = 1) -> RunOptions:
     return RunOptions(t_end=args.t_end, out=args.out, frames=args.frames, restart=args.restart,
                       checkpoint_wall=args.checkpoint_every, checkpoint_steps=args.checkpoint_steps,
                       history_every=history_every, params=params, probes=args.probes)
+
+
+# ----------------------------------------------------------------------------- time scheme
+def add_time_scheme_arguments(parser):
+    """``--scheme`` and ``--cfl``: the explicit scheme of a problem with cracks and its CFL
+    constant (the measured trade-off: docs/benchmarks.md, "The scheme of a crack run")."""
+    parser.add_argument("--scheme", choices=SCHEMES, default="rk4",
+                        help="time scheme (default rk4; lsrk54 takes 1.64x longer steps of 5 stages; "
+                             "ader is for the bulk alone and is refused with cracks)")
+    parser.add_argument("--cfl", type=float, default=None,
+                        help=f"CFL constant C of dt = C h_min / ((2p + 1) c_d) (default: the scheme's documented "
+                             f"stable constant, {', '.join(f'{k} {v}' for k, v in CFL_DEFAULT.items())}; less "
+                             f"for a study of dt)")
+
+
+def check_time_scheme_arguments(parser, args):
+    """Reject a scheme the cracks cannot use and a CFL constant above the scheme's documented
+    stable one, before any meshing."""
+    if args.scheme == ADER:
+        parser.error(f"--scheme {ADER}: ADER is for the bulk alone (crack interfaces are nonlinear and keep a "
+                     f"Runge-Kutta scheme); choose one of {', '.join(CFL_DEFAULT)}")
+    if args.cfl is not None:
+        limit = default_cfl(args.scheme, args.degree)
+        if not (math.isfinite(args.cfl) and 0 < args.cfl <= limit):
+            parser.error(f"--cfl must be in (0, {limit}] for --scheme {args.scheme} (its documented stable "
+                         f"constant, calibrated in docs/verification.md); got {args.cfl}")
 
 
 # ----------------------------------------------------------------------------- free growth

@@ -26,7 +26,7 @@ from .meshes.fractures import (NATURAL, OUTER, PATH, PERFORATION, WELLBORE, Doma
                                check_geometry, fracture_mesh, fracture_points, perforation_points)
 from .network import CrackLine, CrackNetwork
 from .problem import Problem
-from .solver import Solver
+from .solver import CFL_DEFAULT, Solver
 
 
 def radial_paths(domain: Domain, perforations: Sequence[Perforation], lengths: Sequence[float]):
@@ -93,6 +93,8 @@ class Wellbore:
     growth : free growth from the perforation tips (:class:`Growth`), or None
     volume : V(t), the fluid in the network (:class:`~hydrofrac.hydraulics.HydraulicParams`),
         or None: an unlimited supply at p_h (the paper)
+    scheme : the explicit time scheme (:data:`hydrofrac.solver.CFL_DEFAULT`'s keys; not ADER,
+        which is for the bulk alone)
     cfl : the solver's CFL constant (None: its documented stable value; studies of dt take less)
     """
 
@@ -112,6 +114,7 @@ class Wellbore:
     path_friction: float = 0.6
     growth: Optional[Growth] = None
     volume: Optional[PiecewiseLinear] = None
+    scheme: str = "rk4"
     cfl: Optional[float] = None
     adapt: Optional[Adapt] = None
 
@@ -121,6 +124,9 @@ class Wellbore:
                              f"got {self.pressure!r}")
         if not self.perforations:
             raise ValueError("wellbore: give at least one perforation (the hydraulic source)")
+        if self.scheme not in CFL_DEFAULT:
+            raise ValueError(f"wellbore: scheme must be one of {', '.join(CFL_DEFAULT)} (a Runge-Kutta scheme: the "
+                             f"cracks' interface is nonlinear); got {self.scheme!r}")
         if self.contact.delta0 is None and self.contact.closing_speed is None:
             # a contact band resolved in time (delta0 = None) spans its steps at the fastest
             # closing the load can drive: faces unloaded from the peak fluid pressure close at
@@ -194,7 +200,7 @@ def build(desc: Wellbore, comm=MPI.COMM_WORLD, paths=None, path_tags=None, out=N
     cracks = ([Crack(t, friction=0.0, damage=1.0, opening=p.width) for t, p in zip(fm.perforations, desc.perforations)]
               + [Crack(t, friction=f.friction, damage=1.0, tau=f.tau) for t, f in zip(fm.naturals, desc.fractures)]
               + [Crack(t, friction=desc.path_friction, damage=0.0) for t in fm.paths])
-    solver = Solver(fm.mesh, desc.degree, desc.material, facet_tags=fm.facet_tags, sigma0=sigma0, cfl=desc.cfl,
+    solver = Solver(fm.mesh, desc.degree, desc.material, facet_tags=fm.facet_tags, sigma0=sigma0, cfl=desc.cfl, scheme=desc.scheme,
                     bcs=[Traction(WELLBORE, pressure=desc.pressure), Absorbing(OUTER, stress=sigma0)],
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks))
     iface = Interface(solver, fm.facet_tags, cracks, damage=desc.damage, contact=desc.contact)

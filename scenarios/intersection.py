@@ -85,15 +85,16 @@ def geometry(x_nf=None, nf_length=1.6, perf_length=0.3, path_length=0.6, quick=F
 
 def description(regularized=True, degree=2, quick=False, x_nf=None, tau=30e-6, delta_bar=0.1, nf_tau=1e-3,
                 h_crack=None, h_far=None, growth=None, ramp=RAMP, connected=True, adapt=None,
-                adapt_tol=wellbore.ADAPT_TOL) -> wellbore.Wellbore:
+                adapt_tol=wellbore.ADAPT_TOL, scheme="rk4", cfl=None) -> wellbore.Wellbore:
     """The problem as data: ``growth`` (a :class:`hydrofrac.wellbore.Growth`) grows the cracks
     freely; None grows them along the pre-meshed potential paths.  ``adapt`` [m]: adaptive
     meshes with that fine size (:func:`hydrofrac.wellbore.adaptive`; ``h_crack`` and ``h_far``
-    then size the cracks, by default at the fine size, and the far field)."""
+    then size the cracks, by default at the fine size, and the far field); ``scheme``, ``cfl``:
+    the time scheme and its CFL constant (None: the scheme's documented one)."""
     dom, perfs, nfs, paths = geometry(x_nf=x_nf, quick=quick, nf_tau=nf_tau, h_crack=h_crack, h_far=h_far)
     desc = wellbore.Wellbore(dom, perfs, pressure_history(rise=ramp), fractures=nfs, paths=() if growth else paths,
                              regularized=regularized, degree=degree, damage=DamageParams(tau=tau),
-                             delta_bar=delta_bar, growth=growth, connected=connected)
+                             delta_bar=delta_bar, growth=growth, connected=connected, scheme=scheme, cfl=cfl)
     return desc if adapt is None else wellbore.adaptive(desc, adapt, adapt_tol, h_crack=h_crack, h_far=h_far)
 
 
@@ -273,6 +274,7 @@ def main(argv=None, regularized=None):
     cli.add_mesh_size_arguments(parser, "0.03, --quick 0.06", "0.5, --quick 0.8")
     cli.add_adapt_arguments(parser)
     cli.add_pressure_factor_argument(parser)
+    cli.add_time_scheme_arguments(parser)
     # the network evolves (docs/model.md §6): the natural fracture's ends are tips, and fast tips branch
     # local remeshing around the new segments (docs/benchmarks.md, "Remeshing: local patches")
     cli.add_growth_arguments(parser, natural_tips=True, branch_speed=BRANCH_SPEED)
@@ -298,10 +300,11 @@ def main(argv=None, regularized=None):
     if not args.ramp > 0:
         parser.error(f"--ramp must be > 0 s; got {args.ramp}")
     cli.check_adapt_arguments(parser, args)
+    cli.check_time_scheme_arguments(parser, args)
     params = dict(regularized=reg, degree=args.degree, quick=args.quick, x_nf=args.x_nf, tau=args.tau,
                   ramp=args.ramp, connected=args.pressure_factor == "connected",
                   nf_tau=args.nf_tau, h_crack=args.h_crack, h_far=args.h_far, growth=wellbore.Growth.from_args(args),
-                  adapt=args.adapt, adapt_tol=args.adapt_tol)
+                  adapt=args.adapt, adapt_tol=args.adapt_tol, scheme=args.scheme, cfl=args.cfl)
     try:
         description(**params)  # the geometry is checked before anything is meshed
     except ValueError as err:

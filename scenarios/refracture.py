@@ -89,16 +89,17 @@ def geometry(quick=False, h_crack=None, h_far=None):
 
 def description(quick=False, degree=2, tau=30e-6, growth=None, connected=False,
                 pump_rate=PUMP_RATE, adapt=None, adapt_tol=wellbore.ADAPT_TOL, h_crack=None,
-                h_far=None) -> wellbore.Wellbore:
+                h_far=None, scheme="rk4", cfl=None) -> wellbore.Wellbore:
     """The problem as data: free growth (``growth``) or the pre-meshed paths, and the fluid of a
     pump at ``pump_rate`` [m²/s] (inf: an unlimited supply); ``adapt`` [m]: adaptive meshes with
     that fine size (:func:`hydrofrac.wellbore.adaptive`); ``h_crack``, ``h_far``: see
-    :func:`geometry`."""
+    :func:`geometry`; ``scheme``, ``cfl``: the time scheme and its CFL constant (None: the
+    scheme's documented one)."""
     dom, perfs, lengths, (pressure, _, _, _) = geometry(quick, h_crack, h_far)
     paths = wellbore.radial_paths(dom, perfs, lengths)
     desc = wellbore.Wellbore(dom, perfs, pressure, paths=() if growth else paths, regularized=True, degree=degree,
                              damage=DamageParams(tau=tau), growth=growth, connected=connected,
-                             volume=fluid_volume(pressure, pump_rate))
+                             volume=fluid_volume(pressure, pump_rate), scheme=scheme, cfl=cfl)
     return desc if adapt is None else wellbore.adaptive(desc, adapt, adapt_tol, h_crack=h_crack, h_far=h_far)
 
 
@@ -305,6 +306,7 @@ def main(argv=None):
     cli.add_growth_arguments(parser, nucleation_cap=NUCLEATION_CAP)
     cli.add_mesh_size_arguments(parser, "0.04, --quick 0.05", "0.8, --quick 0.5")
     cli.add_adapt_arguments(parser)
+    cli.add_time_scheme_arguments(parser)
     histories = [geometry(q)[3] for q in (False, True)]  # (pressure, t_off, t_on, t_end), full and --quick
     args = cli.parse(parser, argv, name="refracture", degree=(2, 1), t_end=tuple(h[3] for h in histories),
                      frames=50)
@@ -314,9 +316,10 @@ def main(argv=None):
     if not args.pump_rate > 0:
         parser.error(f"--pump-rate must be > 0 m^2/s (inf: unlimited); got {args.pump_rate}")
     cli.check_mesh_size_arguments(parser, args)
+    cli.check_time_scheme_arguments(parser, args)
     params = dict(quick=args.quick, degree=args.degree, tau=args.tau, growth=wellbore.Growth.from_args(args),
                   connected=args.pressure_factor == "connected", pump_rate=args.pump_rate, adapt=args.adapt,
-                  adapt_tol=args.adapt_tol, h_crack=args.h_crack, h_far=args.h_far)
+                  adapt_tol=args.adapt_tol, h_crack=args.h_crack, h_far=args.h_far, scheme=args.scheme, cfl=args.cfl)
     try:
         desc = description(**params)
     except ValueError as err:

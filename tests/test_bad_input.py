@@ -154,6 +154,12 @@ def test_run_end_time_must_be_positive():
     ("refracture", ["--growth-remesh", "full", "--growth-patch-radius", "4"], "--growth-patch-radius acts only"),
     ("intersection", ["--adapt", "0.05", "--growth-patch-radius", "4"], "adaptive meshes remesh the whole domain"),
     ("intersection", ["--unregularized", "--pressure-factor", "local"], "drop --pressure-factor"),
+    # the time scheme: ADER is for the bulk alone; C above the scheme's documented constant
+    ("intersection", ["--scheme", "ader"], "ADER is for the bulk alone"),
+    ("refracture", ["--scheme", "lsrk54", "--cfl", "1.5"], "--cfl must be in (0, 1.39] for --scheme lsrk54"),
+    ("refracture", ["--cfl", "0.9"], "--cfl must be in (0, 0.85] for --scheme rk4"),
+    ("intersection", ["--cfl", "nan"], "--cfl must be in"),
+    ("intersection", ["--scheme", "rk5"], "invalid choice: 'rk5'"),
 ])
 def test_growth_options_rejected_before_meshing(name, args, word, capsys, tmp_path):
     """Bad growth or mesh options stop a wellbore scenario at once (exit 2) with the option
@@ -172,6 +178,14 @@ def test_growth_limit_inside_the_perforations_rejected(tmp_path, capsys):
         _scenario("refracture").main(["--quick", "--growth-max-radius", "0.2", "--out", str(tmp_path / "run")])
     assert info.value.code == 2 and "perforation tips" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
+
+
+def test_wellbore_scheme_must_be_runge_kutta():
+    """A wellbore description with cracks refuses ADER (and a misspelt scheme) when it is made."""
+    rf = _scenario("refracture")
+    for bad in ("ader", "RK4"):
+        with pytest.raises(ValueError, match=rf"scheme must be one of rk4, ssprk3, lsrk54, lsrk144 .*got '{bad}'"):
+            rf.description(quick=True, scheme=bad)
 
 
 def test_refracture_mesh_sizes_are_the_ones_asked_for():
