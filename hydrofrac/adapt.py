@@ -277,8 +277,7 @@ class Adaptivity:
 
     def due(self, solver) -> bool:
         """A check every ``check_every`` steps of rk4 at its documented constant, in time
-        (:func:`hydrofrac.growth.check_interval`: the same interval whatever the scheme)."""
-        from .growth import check_interval
+        (:func:`check_interval`: the same interval whatever the scheme)."""
         return solver.step_count % check_interval(solver, int(self.params.check_every)) == 0
 
     def check(self, problem):
@@ -323,6 +322,29 @@ class Adaptivity:
         return {"adaptive_refines": self.refines, "adaptive_coarsens": self.coarsens, "adapt_checks": self.checks}
 
 
+def check_interval(solver, check_every):
+    """Steps between criterion checks: ``check_every`` steps of the rk4 step at its documented
+    CFL constant on this mesh, so that the check interval is the same time whatever the scheme
+    and CFL constant (its steps are then fewer or more); exactly ``check_every`` for the
+    default rk4 run.  The tip speeds and the growth events depend on this interval."""
+    from .solver import CFL_DEFAULT
+    rk4_step = CFL_DEFAULT["rk4"] * solver.h_over_c_min / (2 * solver.degree + 1)
+    return max(1, int(round(check_every * rk4_step / solver.dt)))
+
+
+def fit_step_to_checks(solver, check_every):
+    """Shorten the step, where needed, to a whole number of steps per check interval
+    (``check_every`` rk4 steps in time, :func:`check_interval`), so that the checks fall at the
+    same times whatever the scheme.  Rounding the interval to steps instead moved the grown
+    network (docs/benchmarks.md, "The scheme of a crack run").  A step that already divides
+    the interval (rk4 at its documented constant) is left untouched, bit for bit."""
+    from .solver import CFL_DEFAULT
+    period = check_every * CFL_DEFAULT["rk4"] * solver.h_over_c_min / (2 * solver.degree + 1)
+    ratio = period / solver.dt
+    if abs(ratio - round(ratio)) > 1e-9 * ratio:
+        solver.dt = period / np.ceil(ratio)
+
+
 class RemeshDriver:
     """What every ``remesh`` hook of :func:`hydrofrac.run.run` that builds new problems shares
     (:class:`AdaptDriver`, :class:`hydrofrac.growth.GrowthDriver`): ``build(what) -> Problem``
@@ -338,9 +360,14 @@ class RemeshDriver:
     def _mesh_args(self):
         raise NotImplementedError
 
+    #: steps (of rk4, in time) between the driver's checks: every mesh's step fits them
+    def _check_every(self):
+        raise NotImplementedError
+
     def _build(self):
         problem = self.build(self._mesh_args())
         problem.growth = self  # run() remeshes a problem through its driver
+        fit_step_to_checks(problem.solver, self._check_every())
         return problem
 
     def _log_mesh(self):
@@ -413,6 +440,9 @@ class AdaptDriver(RemeshDriver):
 
     def _mesh_args(self):
         return self.adapt.refinements()
+
+    def _check_every(self):
+        return self.adapt.params.check_every
 
     def __call__(self, problem):
         solver = problem.solver

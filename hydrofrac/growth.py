@@ -24,7 +24,7 @@ from mpi4py import MPI
 
 from . import riemann as rm
 from ._jit import njit
-from .adapt import RemeshDriver
+from .adapt import RemeshDriver, check_interval, fit_step_to_checks  # noqa: F401  (check_interval: re-exported)
 from .material import ROCK
 from .probes import fields_at
 
@@ -510,17 +510,6 @@ def segment_damages(iface, segments):
     return [t[0] / t[1] if t[1] else float("nan") for t in local]
 
 
-def check_interval(solver, check_every):
-    """Steps between criterion checks: ``check_every`` steps of the rk4 step at its documented
-    CFL constant on this mesh, so that the check interval is the same time whatever the scheme
-    and CFL constant (its steps are then fewer or more); exactly ``check_every`` for the
-    default rk4 run.  The tip speeds and the growth events depend on this interval."""
-    from .solver import CFL_DEFAULT
-    rk4_step = CFL_DEFAULT["rk4"] * solver.h_over_c_min / (2 * solver.degree + 1)
-    return max(1, int(round(check_every * rk4_step / solver.dt)))
-
-
-
 def _record_json(data: dict) -> str:
     """``data`` as JSON with one line per top-level entry and per list item: readable, and
     written by the C encoder (``indent`` makes json fall back to its Python encoder, 3x slower;
@@ -615,6 +604,9 @@ class GrowthDriver(RemeshDriver):
 
     def _mesh_args(self):
         return self._polylines()
+
+    def _check_every(self):
+        return self.check_every
 
     def _polylines(self):
         keep = [i for i, p in enumerate(self.paths) if len(p) > 1]
@@ -1119,6 +1111,7 @@ class GrowthDriver(RemeshDriver):
             self.build.restore_mesh(mesh)
             self.problem = self.build(self._polylines(), count=False)
             self.problem.growth = self
+            fit_step_to_checks(self.problem.solver, self._check_every())
         else:
             self.problem = self._build()
         return self.problem
