@@ -367,7 +367,8 @@ class RemeshDriver:
     def _build(self):
         problem = self.build(self._mesh_args())
         problem.growth = self  # run() remeshes a problem through its driver
-        fit_step_to_checks(problem.solver, self._check_every())
+        if getattr(problem, "solver", None) is not None:  # (the tests' stand-in problems have none)
+            fit_step_to_checks(problem.solver, self._check_every())
         return problem
 
     def _log_mesh(self):

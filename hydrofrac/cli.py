@@ -20,7 +20,8 @@ from .run import RunOptions
 from .solver import ADER, CFL_DEFAULT, MAX_DEGREE, SCHEMES, default_cfl
 
 #: options that do not change the computed result (a restart may change them)
-RUN_ONLY = {"out", "t_end", "frames", "restart", "checkpoint_every", "checkpoint_steps", "verbose", "probes"}
+RUN_ONLY = {"out", "t_end", "frames", "restart", "checkpoint_every", "checkpoint_steps", "verbose", "probes",
+            "_scheme_cracks"}
 
 
 def scenario_parser(description: str) -> argparse.ArgumentParser:
@@ -107,22 +108,26 @@ def run_options(args, history_every: int = 1) -> RunOptions:
 
 
 # ----------------------------------------------------------------------------- time scheme
-def add_time_scheme_arguments(parser):
-    """``--scheme`` and ``--cfl``: the explicit scheme of a problem with cracks and its CFL
-    constant (the measured trade-off: docs/benchmarks.md, "The scheme of a crack run")."""
+def add_time_scheme_arguments(parser, cracks=True):
+    """``--scheme`` and ``--cfl``: the explicit scheme and its CFL constant (the measured
+    trade-off on the crack runs: docs/benchmarks.md, "The scheme of a crack run"; ADER only
+    where there are no ``cracks``)."""
+    ader = ("ader is refused with cracks" if cracks else
+            "ader: the one-step scheme for the bulk, docs/benchmarks.md")
     parser.add_argument("--scheme", choices=SCHEMES, default="rk4",
-                        help="time scheme (default rk4; lsrk54 takes 1.64x longer steps of 5 stages; "
-                             "ader is for the bulk alone and is refused with cracks)")
+                        help=f"time scheme (default rk4; lsrk54: 5-stage steps up to 1.64x longer, 10/7 in growth "
+                             f"runs, whose steps fit the check interval; {ader})")
     parser.add_argument("--cfl", type=float, default=None,
                         help=f"CFL constant C of dt = C h_min / ((2p + 1) c_d) (default: the scheme's documented "
-                             f"stable constant, {', '.join(f'{k} {v}' for k, v in CFL_DEFAULT.items())}; less "
-                             f"for a study of dt)")
+                             f"stable constant, {', '.join(f'{k} {v}' for k, v in CFL_DEFAULT.items())}, ader by "
+                             f"degree; less for a study of dt)")
+    parser.set_defaults(_scheme_cracks=cracks)
 
 
 def check_time_scheme_arguments(parser, args):
     """Reject a scheme the cracks cannot use and a CFL constant above the scheme's documented
     stable one, before any meshing."""
-    if args.scheme == ADER:
+    if args.scheme == ADER and args._scheme_cracks:
         parser.error(f"--scheme {ADER}: ADER is for the bulk alone (crack interfaces are nonlinear and keep a "
                      f"Runge-Kutta scheme); choose one of {', '.join(CFL_DEFAULT)}")
     if args.cfl is not None:

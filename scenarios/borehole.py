@@ -46,7 +46,7 @@ from hydrofrac.boundary import Absorbing, PiecewiseLinear, Symmetry, Traction
 from hydrofrac.meshes import borehole as bh
 from hydrofrac.problem import Problem
 from hydrofrac.run import Monitor, run
-from hydrofrac.solver import SCHEMES, Solver
+from hydrofrac.solver import Solver
 # -
 
 # ## Problem data
@@ -151,7 +151,7 @@ def pressure_history():
     return PiecewiseLinear((0.0, RAMP), (CONFINEMENT, P_FINAL))
 
 
-def setup(comm, size: str, degree=None, full=False, out=None, scheme="rk4") -> Problem:
+def setup(comm, size: str, degree=None, full=False, out=None, scheme="rk4", cfl=None) -> Problem:
     h_hole, growth, p_default, _ = SIZES[size]
     mesh, cell_tags, facet_tags = bh.borehole_mesh(comm, a=A, R=R, h_hole=h_hole, growth=growth,
                                                    quarter=not full, out=out)
@@ -161,7 +161,7 @@ def setup(comm, size: str, degree=None, full=False, out=None, scheme="rk4") -> P
     if not full:
         bcs += [Symmetry(bh.SYMMETRY_X), Symmetry(bh.SYMMETRY_Y)]
     solver = Solver(mesh, p_default if degree is None else degree, ROCK, facet_tags=facet_tags, bcs=bcs,
-                    sigma0=sigma0, scheme=scheme)
+                    sigma0=sigma0, scheme=scheme, cfl=cfl)
     return Problem(solver, facet_tags=facet_tags)
 
 
@@ -187,14 +187,14 @@ def render_png(pvd: Path, png: Path):
 def main(argv=None):
     parser = cli.scenario_parser("Pressurised borehole in confined rock (hydrofrac scenario)")
     parser.add_argument("--full", action="store_true", help="mesh the whole square, not a quarter")
-    parser.add_argument("--scheme", default="rk4", choices=SCHEMES,
-                        help="time scheme (default rk4; ader: the one-step scheme for the bulk, docs/benchmarks.md)")
+    cli.add_time_scheme_arguments(parser, cracks=False)
     args = cli.parse(parser, argv, name="borehole", degree=(SIZES["default"][2], SIZES["quick"][2]),
                      t_end=(SIZES["default"][3], SIZES["quick"][3]), frames=(25, 5))
+    cli.check_time_scheme_arguments(parser, args)
     comm = MPI.COMM_WORLD
     out = Path(args.out)
     problem = setup(comm, "quick" if args.quick else "default", degree=args.degree, full=args.full, out=out,
-                    scheme=args.scheme)
+                    scheme=args.scheme, cfl=args.cfl)
     summary = run(problem, cli.run_options(args), name="borehole", monitors=[LameReport(A, pressure_history())])
     if comm.rank == 0:
         png = render_png(Path(summary["output"]["paraview"]), out / "borehole.png")

@@ -160,6 +160,7 @@ def test_run_end_time_must_be_positive():
     ("refracture", ["--cfl", "0.9"], "--cfl must be in (0, 0.85] for --scheme rk4"),
     ("intersection", ["--cfl", "nan"], "--cfl must be in"),
     ("intersection", ["--scheme", "rk5"], "invalid choice: 'rk5'"),
+    ("borehole", ["--scheme", "ader", "--cfl", "0.8"], "--cfl must be in (0, 0.73] for --scheme ader"),
 ])
 def test_growth_options_rejected_before_meshing(name, args, word, capsys, tmp_path):
     """Bad growth or mesh options stop a wellbore scenario at once (exit 2) with the option
