@@ -322,24 +322,27 @@ class Adaptivity:
         return {"adaptive_refines": self.refines, "adaptive_coarsens": self.coarsens, "adapt_checks": self.checks}
 
 
+def _check_period(solver, check_every):
+    """``check_every`` steps of rk4 at its documented CFL constant on this mesh [s]."""
+    from .solver import CFL_DEFAULT
+    return check_every * CFL_DEFAULT["rk4"] * solver.h_over_c_min / (2 * solver.degree + 1)
+
+
 def check_interval(solver, check_every):
     """Steps between criterion checks: ``check_every`` steps of the rk4 step at its documented
     CFL constant on this mesh, so that the check interval is the same time whatever the scheme
     and CFL constant (its steps are then fewer or more); exactly ``check_every`` for the
     default rk4 run.  The tip speeds and the growth events depend on this interval."""
-    from .solver import CFL_DEFAULT
-    rk4_step = CFL_DEFAULT["rk4"] * solver.h_over_c_min / (2 * solver.degree + 1)
-    return max(1, int(round(check_every * rk4_step / solver.dt)))
+    return max(1, int(round(_check_period(solver, check_every) / solver.dt)))
 
 
 def fit_step_to_checks(solver, check_every):
     """Shorten the step, where needed, to a whole number of steps per check interval
-    (``check_every`` rk4 steps in time, :func:`check_interval`), so that the checks fall at the
-    same times whatever the scheme.  Rounding the interval to steps instead moved the grown
-    network (docs/benchmarks.md, "The scheme of a crack run").  A step that already divides
-    the interval (rk4 at its documented constant) is left untouched, bit for bit."""
-    from .solver import CFL_DEFAULT
-    period = check_every * CFL_DEFAULT["rk4"] * solver.h_over_c_min / (2 * solver.degree + 1)
+    (:func:`check_interval`), so that the checks fall at the same times whatever the scheme.
+    Rounding the interval to steps instead moved the grown network (docs/benchmarks.md, "The
+    scheme of a crack run").  A step that already divides the interval (rk4 at its documented
+    constant) is left untouched, bit for bit."""
+    period = _check_period(solver, check_every)
     ratio = period / solver.dt
     if abs(ratio - round(ratio)) > 1e-9 * ratio:
         solver.dt = period / np.ceil(ratio)
@@ -364,8 +367,8 @@ class RemeshDriver:
     def _check_every(self):
         raise NotImplementedError
 
-    def _build(self):
-        problem = self.build(self._mesh_args())
+    def _build(self, **kw):
+        problem = self.build(self._mesh_args(), **kw)
         problem.growth = self  # run() remeshes a problem through its driver
         if getattr(problem, "solver", None) is not None:  # (the tests' stand-in problems have none)
             fit_step_to_checks(problem.solver, self._check_every())

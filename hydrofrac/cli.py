@@ -20,8 +20,7 @@ from .run import RunOptions
 from .solver import ADER, CFL_DEFAULT, MAX_DEGREE, SCHEMES, default_cfl
 
 #: options that do not change the computed result (a restart may change them)
-RUN_ONLY = {"out", "t_end", "frames", "restart", "checkpoint_every", "checkpoint_steps", "verbose", "probes",
-            "_scheme_cracks"}
+RUN_ONLY = {"out", "t_end", "frames", "restart", "checkpoint_every", "checkpoint_steps", "verbose", "probes"}
 
 
 def scenario_parser(description: str) -> argparse.ArgumentParser:
@@ -121,13 +120,12 @@ def add_time_scheme_arguments(parser, cracks=True):
                         help=f"CFL constant C of dt = C h_min / ((2p + 1) c_d) (default: the scheme's documented "
                              f"stable constant, {', '.join(f'{k} {v}' for k, v in CFL_DEFAULT.items())}, ader by "
                              f"degree; less for a study of dt)")
-    parser.set_defaults(_scheme_cracks=cracks)
 
 
-def check_time_scheme_arguments(parser, args):
-    """Reject a scheme the cracks cannot use and a CFL constant above the scheme's documented
-    stable one, before any meshing."""
-    if args.scheme == ADER and args._scheme_cracks:
+def check_time_scheme_arguments(parser, args, cracks=True):
+    """Reject a scheme that ``cracks`` cannot use (ADER) and a CFL constant above the scheme's
+    documented stable one, before any meshing."""
+    if args.scheme == ADER and cracks:
         parser.error(f"--scheme {ADER}: ADER is for the bulk alone (crack interfaces are nonlinear and keep a "
                      f"Runge-Kutta scheme); choose one of {', '.join(CFL_DEFAULT)}")
     if args.cfl is not None:

@@ -24,7 +24,7 @@ from mpi4py import MPI
 
 from . import riemann as rm
 from ._jit import njit
-from .adapt import RemeshDriver, check_interval, fit_step_to_checks  # noqa: F401  (check_interval: re-exported)
+from .adapt import RemeshDriver, check_interval
 from .material import ROCK
 from .probes import fields_at
 
@@ -1109,9 +1109,7 @@ class GrowthDriver(RemeshDriver):
         mesh = json.loads(text).get("mesh")
         if mesh is not None:
             self.build.restore_mesh(mesh)
-            self.problem = self.build(self._polylines(), count=False)
-            self.problem.growth = self
-            fit_step_to_checks(self.problem.solver, self._check_every())
+            self.problem = self._build(count=False)
         else:
             self.problem = self._build()
         return self.problem

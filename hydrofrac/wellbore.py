@@ -200,7 +200,8 @@ def build(desc: Wellbore, comm=MPI.COMM_WORLD, paths=None, path_tags=None, out=N
     cracks = ([Crack(t, friction=0.0, damage=1.0, opening=p.width) for t, p in zip(fm.perforations, desc.perforations)]
               + [Crack(t, friction=f.friction, damage=1.0, tau=f.tau) for t, f in zip(fm.naturals, desc.fractures)]
               + [Crack(t, friction=desc.path_friction, damage=0.0) for t in fm.paths])
-    solver = Solver(fm.mesh, desc.degree, desc.material, facet_tags=fm.facet_tags, sigma0=sigma0, cfl=desc.cfl, scheme=desc.scheme,
+    solver = Solver(fm.mesh, desc.degree, desc.material, facet_tags=fm.facet_tags, sigma0=sigma0, cfl=desc.cfl,
+                    scheme=desc.scheme,
                     bcs=[Traction(WELLBORE, pressure=desc.pressure), Absorbing(OUTER, stress=sigma0)],
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks))
     iface = Interface(solver, fm.facet_tags, cracks, damage=desc.damage, contact=desc.contact)
