@@ -29,7 +29,7 @@ from .output import FrameSchedule, History
 from .probes import ProbeWriter
 from .problem import Problem
 from .solver import BlowUpError, Solver
-from .summary import build_summary, write_summary
+from .summary import build_summary, unit_counts, write_summary
 
 
 def _real(v) -> bool:
@@ -186,7 +186,11 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
     monitors = list(monitors)
     t_end = float(options.t_end)
     loop = {"remeshes": 0, "work": 0.0}
-    timed = {"remeshes": 0}  # the remeshes of this process, whose time the timers hold
+    # the remeshes of this process, whose time the timers hold, and the work the unit costs
+    # divide them by: this rank's owned cell*stages and crack facet*stages, step by step (the
+    # mesh changes as cracks grow)
+    timed = {"remeshes": 0, "cell_stages": 0, "facet_stages": 0}
+    counted = [None, 0, 0]  # (solver, owned cells, crack facets) of this rank, once per mesh
 
     def geometry():
         return remesh.checkpoint_state() if remesh is not None and hasattr(remesh, "checkpoint_state") else ""
@@ -287,6 +291,10 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
             finally:
                 solver.dt = dt_full
             loop["work"] += solver.num_dofs * solver.num_stages
+            if counted[0] is not solver:
+                counted[:] = [solver, *unit_counts(solver)]
+            timed["cell_stages"] += counted[1] * solver.num_stages
+            timed["facet_stages"] += counted[2] * solver.num_stages
             problem.after_step()
             for m in monitors:
                 m(problem)
@@ -370,7 +378,7 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
                             {"paraview": str(series.pvd_path), "history": str(history_path),
                              "checkpoint": str(ckpt.dir),
                              **({"probes": str(out / "probes.csv")} if probes is not None else {})},
-                            remeshes_timed=timed["remeshes"])
+                            remeshes_timed=timed["remeshes"], unit_work=(timed["cell_stages"], timed["facet_stages"]))
     write_summary(summary, out, comm)
     for m in monitors:
         line = m.report(accuracy)

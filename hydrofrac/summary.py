@@ -12,10 +12,12 @@ from . import compat, native
 
 
 def build_summary(problem, name: str, wall: float, work: float, steps_run: int, remesh_info, accuracy: Dict,
-                  outputs: Dict, remeshes_timed: Optional[int] = None) -> Dict:
+                  outputs: Dict, remeshes_timed: Optional[int] = None, unit_work=None) -> Dict:
     """The summary dictionary (collective: the time split and unit costs are reduced).
     ``remesh_info``: the run's remeshes; ``remeshes_timed``: those of this process (after a
-    restart, the ones the timers saw; default all), the per-remesh times' divisor."""
+    restart, the ones the timers saw; default all), the per-remesh times' divisor;
+    ``unit_work``: this rank's (owned cell*stages, crack facet*stages) of the steps timed
+    (default: the last mesh's counts times ``steps_run``)."""
     solver, comm = problem.solver, problem.comm
     summary = problem.summary()
     summary.update({
@@ -28,7 +30,10 @@ def build_summary(problem, name: str, wall: float, work: float, steps_run: int, 
         "time_split_s": {k: comm.allreduce(v, op=compat.MPI.MAX) for k, v in solver.timers.t.items()},
         "output": outputs,
     })
-    summary["cost_us"] = unit_costs(solver, steps_run)
+    if unit_work is None:
+        cells, facets = unit_counts(solver)
+        unit_work = (cells * solver.num_stages * steps_run, facets * solver.num_stages * steps_run)
+    summary["cost_us"] = unit_costs(solver, *unit_work)
     mf = getattr(solver, "matfree", None)
     summary["kernels"] = ("assembled operator (PETSc)" if mf is None else
                           native.describe() if mf.kernels == "c" else "numba")
@@ -67,21 +72,27 @@ def write_summary(summary: Dict, out: Path, comm):
         print_summary(summary)
 
 
-def unit_costs(solver, steps: int) -> Dict[str, float]:
-    """Wall time per unit of work, summed over ranks [µs]: the bulk operator per
-    cell*stage and the interface kernel per crack facet*stage (docs/benchmarks.md)."""
-    comm = solver.comm
-    stages = solver.num_stages * max(steps, 1)
-    t = solver.timers.t
-    cells = compat.num_cells_local(solver.mesh)
+def unit_counts(solver):
+    """This rank's (owned cells, crack facets) on the solver's mesh: the units of the bulk
+    operator's and the interface kernel's work."""
     facets = sum(e.facets.size for e in solver.extensions if hasattr(e, "facets"))
-    loc = np.array([t.get("bulk operator", 0.0), cells, t.get("interface kernel", 0.0), facets], dtype=float)
+    return compat.num_cells_local(solver.mesh), facets
+
+
+def unit_costs(solver, cell_stages: float, facet_stages: float) -> Dict[str, float]:
+    """Wall time per unit of work, summed over ranks [µs]: the bulk operator per
+    cell*stage and the interface kernel per crack facet*stage (docs/benchmarks.md), the work
+    being this rank's ``cell_stages`` and ``facet_stages``, counted step by step on the
+    meshes the run went through."""
+    t = solver.timers.t
+    loc = np.array([t.get("bulk operator", 0.0), cell_stages, t.get("interface kernel", 0.0), facet_stages],
+                   dtype=float)
     tot = np.zeros(4)
-    comm.Allreduce(loc, tot, op=compat.MPI.SUM)
-    out = {"bulk_per_cell_stage": 1e6 * tot[0] / max(tot[1] * stages, 1)}
+    solver.comm.Allreduce(loc, tot, op=compat.MPI.SUM)
+    out = {"bulk_per_cell_stage": 1e6 * tot[0] / max(tot[1], 1)}
     if tot[3] > 0:
-        out["interface_per_facet_stage"] = 1e6 * tot[2] / (tot[3] * stages)
-        out["crack_facets"] = int(tot[3])
+        out["interface_per_facet_stage"] = 1e6 * tot[2] / tot[3]
+        out["crack_facets"] = int(solver.comm.allreduce(unit_counts(solver)[1], op=compat.MPI.SUM))
     return out
 
 

@@ -138,6 +138,17 @@ def test_crack_growth_scenario_on_one_and_two_ranks(tmp_path, run_command, mpiru
     crit = s[1]["time_split_s"]["growth criterion"]
     assert r["criterion_share_of_steps"] == pytest.approx(crit / (s[1]["wall_time_s"] - r["wall_s"]))
     assert 0 < r["criterion_share_of_steps"] < 1
+    # the bulk operator's unit cost divides its time by the cell*stages of the meshes the run
+    # went through, step by step (growth.json's meshes: start time, cells, step), not by the last
+    # mesh's cells times all the steps
+    from hydrofrac.solver import num_stages
+    meshes = json.loads((tmp_path / "n1" / "growth.json").read_text())["meshes"]
+    steps = [round((b["t"] - a["t"]) / a["dt"]) for a, b in zip(meshes, meshes[1:])]
+    steps.append(s[1]["steps"] - sum(steps))
+    cell_stages = num_stages(s[1]["scheme"]) * sum(k * m["cells"] for k, m in zip(steps, meshes))
+    assert len(meshes) == r["remeshes"] + 1 and min(steps) >= 1
+    assert s[1]["cost_us"]["bulk_per_cell_stage"] == pytest.approx(
+        1e6 * s[1]["time_split_s"]["bulk operator"] / cell_stages, rel=1e-9)
     assert s[1]["energy"]["transfer_loss"] > 0
     assert abs(s[1]["energy"]["balance_error_relative"]) < 1e-3
     for key in ("remeshes", "extensions", "tip0_first_kink_deg", "tip1_first_kink_deg", "tip0_grown_m", "tip1_grown_m"):
