@@ -17,7 +17,7 @@ from pathlib import Path
 from .growth import BRANCH_SPEED
 from .material import ROCK
 from .run import RunOptions
-from .solver import ADER, CFL_DEFAULT, MAX_DEGREE, SCHEMES, default_cfl
+from .solver import CFL_DEFAULT, MAX_DEGREE, SCHEMES, default_cfl
 
 #: options that do not change the computed result (a restart may change them)
 RUN_ONLY = {"out", "t_end", "frames", "restart", "checkpoint_every", "checkpoint_steps", "verbose", "probes"}
@@ -122,12 +122,10 @@ def add_time_scheme_arguments(parser, cracks=True):
                              f"degree; less for a study of dt)")
 
 
-def check_time_scheme_arguments(parser, args, cracks=True):
-    """Reject a scheme that ``cracks`` cannot use (ADER) and a CFL constant above the scheme's
-    documented stable one, before any meshing."""
-    if args.scheme == ADER and cracks:
-        parser.error(f"--scheme {ADER}: ADER is for the bulk alone (crack interfaces are nonlinear and keep a "
-                     f"Runge-Kutta scheme); choose one of {', '.join(CFL_DEFAULT)}")
+def check_time_scheme_arguments(parser, args):
+    """Reject a CFL constant above the scheme's documented stable one, before any meshing (a
+    scheme the cracks cannot use is the problem description's to refuse:
+    :class:`hydrofrac.wellbore.Wellbore`)."""
     if args.cfl is not None:
         limit = default_cfl(args.scheme, args.degree)
         if not (math.isfinite(args.cfl) and 0 < args.cfl <= limit):

@@ -12,12 +12,12 @@ from . import compat, native
 
 
 def build_summary(problem, name: str, wall: float, work: float, steps_run: int, remesh_info, accuracy: Dict,
-                  outputs: Dict, remeshes_timed: Optional[int] = None, unit_work=None) -> Dict:
+                  outputs: Dict, unit_work, remeshes_timed: Optional[int] = None) -> Dict:
     """The summary dictionary (collective: the time split and unit costs are reduced).
     ``remesh_info``: the run's remeshes; ``remeshes_timed``: those of this process (after a
     restart, the ones the timers saw; default all), the per-remesh times' divisor;
-    ``unit_work``: this rank's (owned cell*stages, crack facet*stages) of the steps timed
-    (default: the last mesh's counts times ``steps_run``)."""
+    ``unit_work``: this rank's (owned cell*stages, crack facet*stages) of the steps timed,
+    counted step by step on the meshes the run went through."""
     solver, comm = problem.solver, problem.comm
     summary = problem.summary()
     summary.update({
@@ -30,9 +30,6 @@ def build_summary(problem, name: str, wall: float, work: float, steps_run: int, 
         "time_split_s": {k: comm.allreduce(v, op=compat.MPI.MAX) for k, v in solver.timers.t.items()},
         "output": outputs,
     })
-    if unit_work is None:
-        cells, facets = unit_counts(solver)
-        unit_work = (cells * solver.num_stages * steps_run, facets * solver.num_stages * steps_run)
     summary["cost_us"] = unit_costs(solver, *unit_work)
     mf = getattr(solver, "matfree", None)
     summary["kernels"] = ("assembled operator (PETSc)" if mf is None else

@@ -125,8 +125,8 @@ class Wellbore:
         if not self.perforations:
             raise ValueError("wellbore: give at least one perforation (the hydraulic source)")
         if self.scheme not in CFL_DEFAULT:
-            raise ValueError(f"wellbore: scheme must be one of {', '.join(CFL_DEFAULT)} (a Runge-Kutta scheme: the "
-                             f"cracks' interface is nonlinear); got {self.scheme!r}")
+            raise ValueError(f"wellbore: scheme must be one of {', '.join(CFL_DEFAULT)}: the cracks' interface is "
+                             f"nonlinear and needs a Runge-Kutta scheme (ADER is for the bulk alone); got {self.scheme!r}")
         if self.contact.delta0 is None and self.contact.closing_speed is None:
             # a contact band resolved in time (delta0 = None) spans its steps at the fastest
             # closing the load can drive: faces unloaded from the peak fluid pressure close at

@@ -190,7 +190,7 @@ def main(argv=None):
     cli.add_time_scheme_arguments(parser, cracks=False)
     args = cli.parse(parser, argv, name="borehole", degree=(SIZES["default"][2], SIZES["quick"][2]),
                      t_end=(SIZES["default"][3], SIZES["quick"][3]), frames=(25, 5))
-    cli.check_time_scheme_arguments(parser, args, cracks=False)
+    cli.check_time_scheme_arguments(parser, args)
     comm = MPI.COMM_WORLD
     out = Path(args.out)
     problem = setup(comm, "quick" if args.quick else "default", degree=args.degree, full=args.full, out=out,

@@ -156,6 +156,7 @@ def test_run_end_time_must_be_positive():
     ("intersection", ["--unregularized", "--pressure-factor", "local"], "drop --pressure-factor"),
     # the time scheme: ADER is for the bulk alone; C above the scheme's documented constant
     ("intersection", ["--scheme", "ader"], "ADER is for the bulk alone"),
+    ("refracture", ["--scheme", "ader"], "needs a Runge-Kutta scheme"),
     ("refracture", ["--scheme", "lsrk54", "--cfl", "1.5"], "--cfl must be in (0, 1.39] for --scheme lsrk54"),
     ("refracture", ["--cfl", "0.9"], "--cfl must be in (0, 0.85] for --scheme rk4"),
     ("intersection", ["--cfl", "nan"], "--cfl must be in"),
@@ -185,7 +186,7 @@ def test_wellbore_scheme_must_be_runge_kutta():
     """A wellbore description with cracks refuses ADER (and a misspelt scheme) when it is made."""
     rf = _scenario("refracture")
     for bad in ("ader", "RK4"):
-        with pytest.raises(ValueError, match=rf"scheme must be one of rk4, ssprk3, lsrk54, lsrk144 .*got '{bad}'"):
+        with pytest.raises(ValueError, match=rf"scheme must be one of rk4, ssprk3, lsrk54, lsrk144: .*got '{bad}'"):
             rf.description(quick=True, scheme=bad)
 
 
