@@ -282,11 +282,16 @@ def num_cells_with_ghosts(mesh):
     return im.size_local + im.num_ghosts
 
 
+def cell_geometry_nodes(mesh):
+    """(num_cells incl. ghosts, 3) geometry node indices of each triangle, in the cell's
+    reference order (0.9: ``mesh.geometry.dofmap`` is a 2D array)."""
+    return mesh.geometry.dofmap.array.reshape(-1, 3)
+
+
 def cell_vertex_coords(mesh):
     """(num_cells incl. ghosts, 3, 2) coordinates of each triangle's geometry nodes,
-    in the cell's reference order (0.9: ``mesh.geometry.dofmap`` is a 2D array)."""
-    xdofs = mesh.geometry.dofmap.array.reshape(-1, 3)
-    return mesh.geometry.x[xdofs, :2]
+    in the cell's reference order."""
+    return mesh.geometry.x[cell_geometry_nodes(mesh), :2]
 
 
 def connectivity(mesh, d0, d1):

@@ -447,7 +447,7 @@ def nucleation_site(solver, params: NucleationParams, lines=(), inside=None):
     comm = solver.comm
     nloc = compat.num_cells_local(solver.mesh)
     g = solver.geometry
-    cent = g.vertices[:nloc].mean(axis=1)
+    cent = g.centroid[:nloc]
     phi_c = solver.ref.tabulate(np.array([[1.0 / 3.0, 1.0 / 3.0]]))[0]
     U = solver.x.array_r.reshape(-1, 5)
     sig = np.einsum("n,cnk->ck", phi_c, U[compat.cell_dofs(solver.V)[:nloc]])[:, 2:5]

@@ -212,11 +212,19 @@ class Interface:
         all_idx = crack_facet_indices(mesh, facet_tags, cracks)
         owned = compat.facet_owned_mask(mesh)
         facets = all_idx[owned[all_idx]]
-        # crack id per facet
-        tag_of = dict(zip(facet_tags.indices.tolist(), facet_tags.values.tolist())) if facets.size else {}
+        # crack id per facet (DOLFINx's meshtags keep their indices sorted)
         self.facets = facets
-        self.crack_tag = np.array([tag_of[f] for f in facets], dtype=np.int32)
+        at = np.minimum(np.searchsorted(facet_tags.indices, facets), max(facet_tags.indices.size - 1, 0))
+        if facets.size and not np.array_equal(facet_tags.indices[at], facets):
+            raise RuntimeError("the facet tags' indices are not sorted; make them with compat.meshtags")
+        self.crack_tag = np.asarray(facet_tags.values[at], dtype=np.int32) if facets.size else np.zeros(0, np.int32)
         crack_by_tag = {c.tag: c for c in self.cracks}
+        # each crack's own data, per facet (one lookup per crack, not per facet)
+        tags, of_tag = np.unique(self.crack_tag, return_inverse=True)
+        by_facet = [crack_by_tag[int(t)] for t in tags]
+
+        def per_facet(value):
+            return np.array([value(c) for c in by_facet], dtype=float)[of_tag] if nf else np.zeros(0)
 
         # geometry: vertices, normal, + and - cells
         f_off, f_arr = compat.connectivity(mesh, tdim - 1, 0)
@@ -238,7 +246,7 @@ class Interface:
                 raise RuntimeError("a crack facet does not have two cells on this rank (ghost mode must be shared_facet)")
             c2 = np.stack([c_arr[c_off[facets]], c_arr[c_off[facets] + 1]], axis=1)
             g = solver.geometry
-            centroid = g.vertices.mean(axis=1)
+            centroid = g.centroid
             mid = 0.5 * (va + vb)
             first_is_plus = np.einsum("fi,fi->f", centroid[c2[:, 0]] - mid, n) < 0
             cells[:, 0] = np.where(first_is_plus, c2[:, 0], c2[:, 1])
@@ -279,8 +287,7 @@ class Interface:
                   for s_ in range(2)]
         self.Zt = rm.reduced_impedance(self.Z[0], self.Z[1])  # Z~ per component
         self._Zt_n = self._wq = None  # (the power terms' contiguous copies, when first asked for)
-        self.tau = np.array([damage.tau if crack_by_tag[t].tau is None else crack_by_tag[t].tau
-                             for t in self.crack_tag], dtype=float)  # tau~ per facet
+        self.tau = per_facet(lambda c: damage.tau if c.tau is None else c.tau)  # tau~ per facet
         self.delta_scale = self.tau * damage.s_bar / self.Zt[:, 0]  # delta~ (eq. 13)
         self.v_scale = damage.s_bar / self.Zt[:, 0]  # v~
         # delta'_0 resolved in time (ContactParams.delta0 = None), from the smallest delta~ and
@@ -295,12 +302,11 @@ class Interface:
         self.contact = contact
 
         self._Zq = [np.repeat(Z_, self.nq, axis=0) for Z_ in self.Z]  # per Gauss point, for the energy terms
-        self.friction = np.array([crack_by_tag[t].friction for t in self.crack_tag], dtype=float)
-        D0 = np.array([crack_by_tag[t].damage for t in self.crack_tag])
-        delta0 = np.array([
-            (crack_by_tag[t].opening if crack_by_tag[t].opening is not None
-             else (contact.delta0 * ds if crack_by_tag[t].damage > 0 else 0.0))
-            for t, ds in zip(self.crack_tag, self.delta_scale)])
+        self.friction = per_facet(lambda c: c.friction)
+        D0 = per_facet(lambda c: c.damage)
+        # the initial opening: a crack's own, else the floor delta'_0 delta~ where it is damaged
+        opening = per_facet(lambda c: np.nan if c.opening is None else c.opening)
+        delta0 = np.where(np.isnan(opening), np.where(D0 > 0, contact.delta0 * self.delta_scale, 0.0), opening)
         self.state = np.zeros((3, nf, self.nq))
         self.state[0] = D0[:, None]
         self.state[1] = delta0[:, None]

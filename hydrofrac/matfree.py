@@ -464,32 +464,32 @@ def facet_nodes(ref, tables, qw):
 
 
 def _facet_frames(mesh, g, facets, cells):
-    """Each facet's end points (va, vb), unit normal n, length, and whether n points out of
-    ``cells`` (one adjacent cell per facet)."""
+    """Each facet's end points (va, vb), unit normal n, length, whether n points out of
+    ``cells`` (one adjacent cell per facet), and the end points' geometry nodes (ga, gb)."""
     f_off, f_arr = compat.connectivity(mesh, mesh.topology.dim - 1, 0)
     x = mesh.geometry.x[:, :2]
     v2g = compat.vertex_to_geometry(mesh)
-    va = x[v2g[f_arr[f_off[facets]]]]
-    vb = x[v2g[f_arr[f_off[facets] + 1]]]
+    ga = v2g[f_arr[f_off[facets]]]
+    gb = v2g[f_arr[f_off[facets] + 1]]
+    va, vb = x[ga], x[gb]
     tang = vb - va
     length = np.linalg.norm(tang, axis=1)
     n = np.stack([tang[:, 1], -tang[:, 0]], axis=1) / np.maximum(length, 1e-300)[:, None]
-    out = np.einsum("fi,fi->f", g.vertices.mean(axis=1)[cells] - 0.5 * (va + vb), n) < 0
-    return va, vb, n, length, out
+    out = np.einsum("fi,fi->f", g.centroid[cells] - 0.5 * (va + vb), n) < 0
+    return va, vb, n, length, out, ga, gb
 
 
-def _facet_codes(g, cells, va, vb):
-    """Code 3 i + j of the reference edge from vertex i to j that the facet (va -> vb) is in
-    each of ``cells``."""
-    Xa = g.to_reference(cells, va)
-    Xb = g.to_reference(cells, vb)
-    ia = np.argmin(np.linalg.norm(Xa[:, None, :] - _REF_VERTICES[None], axis=2), axis=1)
-    ib = np.argmin(np.linalg.norm(Xb[:, None, :] - _REF_VERTICES[None], axis=2), axis=1)
-    if len(cells):
-        err = max(np.abs(Xa - _REF_VERTICES[ia]).max(), np.abs(Xb - _REF_VERTICES[ib]).max())
-        if err > 1e-8 or np.any(ia == ib):
-            raise RuntimeError(f"facet vertices do not map onto reference vertices (error {err:.2e})")
-    return 3 * ia + ib
+def _facet_codes(g, cells, ga, gb):
+    """Code 3 i + j of the reference edge from vertex i to j that the facet with end nodes
+    (ga -> gb) is in each of ``cells``: i and j are the places of those geometry nodes among
+    the cell's (:class:`~hydrofrac.element.CellGeometry`'s reference order), found by index,
+    not by mapping the points back (a third of a remesh's operator set-up)."""
+    cn = g.nodes[cells]
+    at_a, at_b = cn == ga[:, None], cn == gb[:, None]
+    if len(cells) and not (at_a.any(axis=1) & at_b.any(axis=1) & (ga != gb)).all():
+        raise RuntimeError("a facet's end vertices are not two vertices of its cell (the mesh's facet-cell "
+                           "connectivity is broken)")
+    return 3 * at_a.argmax(axis=1) + at_b.argmax(axis=1)
 
 
 def _outer_frame(u, n):
@@ -685,9 +685,9 @@ class MatrixFreeOperator:
         # visit the facets in cell order, so that both sides' blocks are mostly still in cache
         order = np.lexsort((c2.max(axis=1), c2.min(axis=1)))
         facets, c2 = facets[order], c2[order]
-        va, vb, n, length, first_out = _facet_frames(mesh, g, facets, c2[:, 0])
+        va, vb, n, length, first_out, ga, gb = _facet_frames(mesh, g, facets, c2[:, 0])
         cells = np.where(first_out[:, None], c2, c2[:, ::-1])  # + side: the cell n points out of
-        codes = np.stack([_facet_codes(g, cells[:, side], va, vb) for side in range(2)], axis=1)
+        codes = np.stack([_facet_codes(g, cells[:, side], ga, gb) for side in range(2)], axis=1)
         fmask = compat.facet_owned_mask(mesh)
         self.fown = np.ascontiguousarray(fmask[facets])  # count each facet once in global sums
         self.fcells = np.ascontiguousarray(cells, dtype=np.int64)
@@ -730,9 +730,9 @@ class MatrixFreeOperator:
         facets = np.asarray(facets, dtype=np.int64)
         cells = compat.facet_cells(self.mesh, facets).astype(np.int64)
         g = self.geometry
-        va, vb, n, length, out = _facet_frames(self.mesh, g, facets, cells)
+        va, vb, n, length, out, ga, gb = _facet_frames(self.mesh, g, facets, cells)
         n = np.where(out[:, None], n, -n)
-        codes = _facet_codes(g, cells, va, vb)
+        codes = _facet_codes(g, cells, ga, gb)
         nk = self.fnodes.shape[1]
         self.bcells, self.bcodes = np.ascontiguousarray(cells), np.ascontiguousarray(codes, dtype=np.int64)
         self.bnormal, self.blength = np.ascontiguousarray(n), np.ascontiguousarray(length)

@@ -68,13 +68,13 @@ class CrackNetwork:
         (radius ``wellbore_radius`` about the origin) are neither; the last end of a crack
         tagged in ``growing`` is an active tip unless it is a junction."""
         net = cls(list(cracks))
-        segs = net._segments()
+        met = net._cracks_at_ends(tol)
         for k, c in enumerate(net.cracks):
-            for end in (0, -1):
+            for e, end in enumerate((0, -1)):
                 p = c.points[end]
                 if wellbore_radius > 0 and abs(np.hypot(*p) - wellbore_radius) < tol:
                     continue
-                other = net._crack_at(p, k, end, tol, segs)
+                other = met[2 * k + e]
                 if other is not None:
                     seen = any(np.linalg.norm(q - p) < tol and set(tags) == {c.tag, other} for q, tags in net.junctions)
                     if not seen:  # two crack ends that meet are one junction
@@ -99,19 +99,28 @@ class CrackNetwork:
         crack = np.repeat(np.arange(len(n)), n)
         return a, b, crack, np.arange(a.shape[0]) - np.repeat(np.cumsum(n) - n, n)
 
-    def _crack_at(self, p, me: int, end: int, tol: float, segs):
-        """Tag of the first crack whose polyline passes within ``tol`` of ``p`` (for crack
-        ``me``, only its segments short of the end itself: not its two segments at that end),
-        or None.  One pass over the segments of all cracks (:meth:`_segments`)."""
-        a, b, crack, index = segs
+    def _cracks_at_ends(self, tol: float):
+        """For each crack end (crack k's first end at 2 k, its last at 2 k + 1): the tag of the
+        first crack whose polyline passes within ``tol`` of it, or None; for the crack's own
+        polyline only its segments short of that end (not its two segments there).  One pass
+        over every end and every segment (:meth:`_segments`)."""
+        a, b, crack, index = self._segments()
+        if not self.cracks:
+            return []
+        p = np.stack([c.points[end] for c in self.cracks for end in (0, -1)])  # (m, 2)
         e = b - a
-        u = np.clip(np.einsum("ij,ij->i", p - a, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0, 1)
-        near = np.linalg.norm(a + u[:, None] * e - p, axis=1) < tol
-        n_me = len(self.cracks[me].points) - 1
-        own = crack == me
-        near &= ~own | ((index < n_me - 2) if end == -1 else (index >= 2))
-        hit = np.flatnonzero(near)
-        return self.cracks[crack[hit[0]]].tag if hit.size else None
+        w = p[:, None, :] - a[None]  # (m, s, 2)
+        u = np.clip((w[..., 0] * e[:, 0] + w[..., 1] * e[:, 1]) / np.maximum(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1],
+                                                                          1e-300), 0, 1)
+        r = a[None] + u[..., None] * e[None] - p[:, None, :]
+        near = np.sqrt(r[..., 0] * r[..., 0] + r[..., 1] * r[..., 1]) < tol
+        me = np.repeat(np.arange(len(self.cracks)), 2)
+        n_me = np.array([len(c.points) - 1 for c in self.cracks])[me]
+        last = np.tile([False, True], len(self.cracks))
+        short = np.where(last[:, None], index[None] < n_me[:, None] - 2, index[None] >= 2)
+        near &= (crack[None] != me[:, None]) | short
+        first = near.argmax(axis=1)
+        return [self.cracks[crack[f]].tag if near[i, f] else None for i, f in enumerate(first)]
 
     def counts(self) -> dict:
         """What a summary reports: cracks, junctions, tips and active tips."""

@@ -628,7 +628,7 @@ class Solver:
             X = compat.dof_coordinates(self.V).T
             if by_cell:
                 dofs = compat.cell_dofs(self.V)
-                cent = self.geometry.vertices.mean(axis=1)
+                cent = self.geometry.centroid
                 X = X.copy()
                 X[:2, dofs.reshape(-1)] = np.repeat(cent, dofs.shape[1], axis=0).T
             arr = np.asarray(func(X), dtype=float).T.copy()

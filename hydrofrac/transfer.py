@@ -36,7 +36,7 @@ def _owned_cells(solver):
     n = compat.num_cells_local(solver.mesh)
     U = solver.x.array_r.reshape(-1, 5)
     dofs = compat.cell_dofs(solver.V)[:n]
-    return g.x0[:n], g.Jinv[:n], g.vertices[:n].mean(axis=1), U[dofs], g.vertices[:n]
+    return g.x0[:n], g.Jinv[:n], g.centroid[:n], U[dofs], g.vertices[:n]
 
 
 def _cell_keys(vertices):

@@ -531,6 +531,11 @@ def _patch(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], added, radiu
 
     model = gmsh.model
     model.add("patch")
+    # the loops come from a conforming mesh's boundary, outer loop first: OpenCASCADE's fixing
+    # of wire and face orientation has nothing to fix (the same meshes on the demo's patches), and
+    # took 60 % of addPlaneSurface (docs/benchmarks.md, "Cheaper remeshes, the same results");
+    # a face it would have fixed fails the edge-for-edge check below, and the caller remeshes
+    gmsh.option.setNumber("Geometry.OCCAutoFix", 0)
     occ = model.occ
     point_of = {}
 
@@ -775,10 +780,21 @@ def _region(comm, cells, cxy, facets, added, polylines, radius, size, tips):
     inside = seed
     for _ in range(REGION_RINGS):
         nodes = np.unique(np.concatenate(comm.allgather(nodes)))
-        inside = np.isin(cells, nodes).any(axis=1)
+        inside = _member(cells, nodes).any(axis=1)
         nodes = np.unique(cells[inside])
     nodes = np.unique(np.concatenate(comm.allgather(nodes)))
-    return np.flatnonzero(inside), np.flatnonzero(np.isin(facets, nodes).all(axis=1))
+    return np.flatnonzero(inside), np.flatnonzero(_member(facets, nodes).all(axis=1))
+
+
+def _member(a, nodes):
+    """np.isin(a, nodes) for node indices (non-negative integers) by a mask over the indices:
+    one pass, no sort (a region's rings test every cell of the rank five times)."""
+    a = np.asarray(a)
+    if not a.size:
+        return np.zeros(a.shape, dtype=bool)
+    mark = np.zeros(max(int(a.max()), int(nodes.max()) if nodes.size else 0) + 1, dtype=bool)
+    mark[nodes] = True
+    return mark[a]
 
 
 def _rows_in(a, b):
