@@ -174,6 +174,48 @@ def test_crack_network_tips_and_junctions():
     assert CrackNetwork.from_cracks([]).counts() == {"cracks": 0, "junctions": 0, "tips": 0, "active_tips": 0}
 
 
+def test_crack_ends_are_matched_as_one_end_at_a_time():
+    """Every crack end meets the first crack (in the network's order) whose polyline passes
+    within tol of it, its own polyline counting only short of the two segments at that end:
+    the one-pass matching of all ends equals that definition, applied end by end, on networks
+    whose ends lie on other cracks' segments, on their vertices (where two cracks meet, the first
+    is named) and on the crack itself."""
+    from hydrofrac.network import CrackLine, CrackNetwork
+    rng = np.random.default_rng(3)
+
+    def one_end(net, k, end, tol):
+        p = net.cracks[k].points[end]
+        for j, c in enumerate(net.cracks):
+            segs = range(len(c.points) - 1)
+            if j == k:
+                n = len(c.points) - 1
+                segs = [i for i in segs if (i < n - 2 if end == -1 else i >= 2)]
+            for i in segs:
+                a, b = c.points[i], c.points[i + 1]
+                e = b - a
+                u = min(max((p - a) @ e / max(e @ e, 1e-300), 0.0), 1.0)
+                if np.linalg.norm(a + u * e - p) < tol:
+                    return c.tag
+        return None
+
+    for trial in range(30):
+        cracks = []
+        for k in range(rng.integers(2, 7)):
+            pts = np.cumsum(rng.normal(size=(rng.integers(2, 6), 2)), axis=0)
+            if cracks and rng.random() < 0.6:  # an end on another crack: on a segment, or on a vertex
+                other = cracks[rng.integers(len(cracks))].points
+                i = rng.integers(len(other) - 1)
+                pts[-1] = other[i] + (rng.random() if rng.random() < 0.5 else 0.0) * (other[i + 1] - other[i])
+            if rng.random() < 0.2 and len(pts) >= 4:  # the end back on its own first segment
+                pts[-1] = 0.5 * (pts[0] + pts[1])
+            elif rng.random() < 0.2 and len(pts) >= 3:  # folded back onto its segment before last
+                pts[-1] = 0.5 * (pts[-3] + pts[-2])
+            cracks.append(CrackLine(300 + k, "path", pts))
+        net = CrackNetwork(cracks)
+        expect = [one_end(net, k, end, 1e-7) for k in range(len(cracks)) for end in (0, -1)]
+        assert net._cracks_at_ends(1e-7) == expect, trial
+
+
 def test_tip_speeds_and_the_rayleigh_speed():
     """Each extension's speed is its length over the time since the tip's previous one (none
     for a tip's first); the Rayleigh speed of the paper's rock is 0.9110 c_s = 1663 m/s (the

@@ -244,6 +244,36 @@ def test_kernels_choice_is_checked(monkeypatch, tmp_path):
     assert not list(tmp_path.iterdir())  # no half-written library left behind
 
 
+def test_facet_codes_are_the_reference_edges_the_facets_map_to():
+    """Each facet's reference edge in each of its cells (code 3 i + j: from reference vertex i
+    to j) is found from the cell's geometry nodes; it is the edge the facet's end points map to
+    through the cell's affine map, for every interior and boundary facet of a mesh that is not
+    structured (a fracture mesh: its cells come in every orientation)."""
+    from hydrofrac.meshes.fractures import Domain, Fracture, fracture_mesh
+    dom = Domain(half_width=1.0, half_height=1.0, h_crack=0.1, h_far=0.3, grading=0.5, wellbore_radius=0.0)
+    fm = fracture_mesh(MPI.COMM_WORLD, dom, fractures=[Fracture(center=(0.1, 0.0), angle=30.0, length=0.8)])
+    s = Solver(fm.mesh, 2, ROCK)
+    mf, g = s.matfree, s.geometry
+    vert = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+
+    def mapped(cells, codes):
+        # reference vertices i and j of each cell, mapped to physical space
+        i, j = codes // 3, codes % 3
+        xa = g.x0[cells] + np.einsum("cij,cj->ci", g.J[cells], vert[i])
+        xb = g.x0[cells] + np.einsum("cij,cj->ci", g.J[cells], vert[j])
+        return xa, xb
+
+    checked = 0
+    for side in range(2):
+        xa, xb = mapped(mf.fcells[:, side], mf.fcodes[:, side])
+        t = np.stack([-mf.normal[:, 1], mf.normal[:, 0]], axis=1)  # va -> vb: n is its tangent turned clockwise
+        np.testing.assert_allclose(xb - xa, t * mf.length[:, None], atol=1e-12)
+        checked += len(xa)
+    xa, xb = mapped(mf.bcells, mf.bcodes)
+    assert np.allclose(np.linalg.norm(xb - xa, axis=1), mf.blength, atol=1e-12)
+    assert checked > 0 and len(xa) > 0
+
+
 def test_reference_data_is_made_once_per_element():
     """A solver on a new mesh (a remesh) reuses the element's reference data (derivative and
     mass matrices, edge tables) instead of computing them again (docs/benchmarks.md,

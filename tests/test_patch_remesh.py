@@ -20,7 +20,7 @@ from hydrofrac import ROCK, compat
 from hydrofrac.boundary import Absorbing
 from hydrofrac.interface import Crack, Interface, crack_facet_indices
 from hydrofrac.meshes.fractures import NATURAL, OUTER, PATH, Domain, Fracture, fracture_mesh
-from hydrofrac.meshes.patch import SizeLaw, _edge_key, _edges, _in_polygon, _size_callback, gathered
+from hydrofrac.meshes.patch import SizeLaw, _edge_key, _edges, _in_polygon, _member, _size_callback, gathered
 from hydrofrac.network import CrackLine, CrackNetwork
 from hydrofrac.solver import Solver
 from hydrofrac.transfer import continue_run, transfer_fields
@@ -404,3 +404,36 @@ def test_crack_samples_are_linspace_per_segment_bit_for_bit():
                 for line in lines.values() for a, b in zip(line[:-1], line[1:])]
     assert np.array_equal(_samples(lines, step), np.concatenate(expected))
     assert _samples({}, step).shape == (0, 2)
+
+
+def test_region_membership_is_isin():
+    """The region's rings test membership of node indices with a mask (:func:`_member`): the
+    same as ``np.isin`` for any shapes, node sets larger or smaller than the cells' indices,
+    and empty inputs."""
+    rng = np.random.default_rng(7)
+    for _ in range(100):
+        a = rng.integers(0, rng.integers(1, 5000), size=(rng.integers(0, 400), rng.integers(1, 4)))
+        nodes = np.unique(rng.integers(0, 7000, size=rng.integers(0, 600)))
+        assert np.array_equal(_member(a, nodes), np.isin(a, nodes))
+
+
+def test_nearest_sample_through_the_grid_is_the_brute_force_one():
+    """The size law's nearest crack sample is searched through a grid of cells
+    (:func:`_grid`, :func:`_nearest_sq_grid`): the squared distance equals the brute-force
+    pass's bit for bit, for samples along lines, in clusters, on one line of cells, a single
+    sample and none, at points inside the samples' box, on its cell edges and far outside."""
+    from hydrofrac.meshes.patch import _grid, _nearest_sq, _nearest_sq_grid
+    rng = np.random.default_rng(11)
+    clouds = [np.cumsum(rng.normal(scale=0.05, size=(400, 2)), axis=0),  # a crack-like walk
+              rng.normal(size=(50, 2)) * [3.0, 0.01],  # nearly one row of cells
+              np.array([[0.3, -0.2]]), np.zeros((0, 2)),
+              np.repeat(rng.uniform(-1, 1, size=(30, 2)), 5, axis=0)]  # repeated points
+    for pts in clouds:
+        for c in (0.01, 0.05, 0.3):
+            ps, offs, g = _grid(np.ascontiguousarray(pts), c)
+            lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(2), np.ones(2))
+            q = np.concatenate([rng.uniform(lo - 0.2, hi + 0.2, size=(300, 2)), rng.uniform(-50, 50, size=(20, 2)),
+                                g[:2] + g[2] * rng.integers(-3, 8, size=(20, 2))])  # on cell edges
+            for x, y in q:
+                assert _nearest_sq_grid(x, y, ps, offs, g[0], g[1], g[2], int(g[3]), int(g[4])) == \
+                    _nearest_sq(x, y, np.ascontiguousarray(pts))
