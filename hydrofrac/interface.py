@@ -224,7 +224,7 @@ class Interface:
         by_facet = [crack_by_tag[int(t)] for t in tags]
 
         def per_facet(value):
-            return np.array([value(c) for c in by_facet], dtype=float)[of_tag] if nf else np.zeros(0)
+            return np.array([value(c) for c in by_facet], dtype=float)[of_tag] if facets.size else np.zeros(0)
 
         # geometry: vertices, normal, + and - cells
         f_off, f_arr = compat.connectivity(mesh, tdim - 1, 0)

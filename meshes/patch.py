@@ -79,19 +79,18 @@ def _nearest_sq_grid(x, y, pts, offs, gx, gy, c, nx, ny):
         if reach * reach > best:
             break
         for iy in range(max(qy - r, 0), min(qy + r, ny - 1) + 1):
-            edge = iy == qy - r or iy == qy + r
-            ix = max(qx - r, 0)
-            while ix <= min(qx + r, nx - 1):
-                k = iy * nx + ix
-                for i in range(int(offs[k]), int(offs[k + 1])):
-                    dx, dy = pts[i, 0] - x, pts[i, 1] - y
-                    d = dx * dx + dy * dy
-                    if d < best:
-                        best = d
-                if edge or ix == qx + r:
-                    ix += 1
-                else:  # inside the ring's rows, only its two columns
-                    ix = qx + r if qx + r > ix else ix + 1
+            if iy == qy - r or iy == qy + r:  # the ring's top and bottom rows: every cell
+                cols = range(max(qx - r, 0), min(qx + r, nx - 1) + 1)
+            else:  # the rows between: the ring's two columns
+                cols = range(qx - r, qx + r + 1, 2 * r)
+            for ix in cols:
+                if 0 <= ix < nx:
+                    k = iy * nx + ix
+                    for i in range(int(offs[k]), int(offs[k + 1])):
+                        dx, dy = pts[i, 0] - x, pts[i, 1] - y
+                        d = dx * dx + dy * dy
+                        if d < best:
+                            best = d
     return best
 
 
@@ -111,8 +110,8 @@ def _size_at(x, y, pts, offs, grid, tips, wellbore_radius, h_crack, h_far, span,
 
 def _grid(pts, c):
     """(pts sorted by cell, offsets, (gx, gy, c, nx, ny)) of :func:`_nearest_sq_grid`: cells
-    ``c`` wide over the points' box, widened where more than 4 cells per point would be empty
-    room."""
+    ``c`` wide over the points' box, or wider where the box would hold more than about 4 cells
+    per point."""
     if not len(pts):
         return pts, np.zeros(2), np.array([0.0, 0.0, 1.0, 1.0, 1.0])
     g0 = pts.min(axis=0)
