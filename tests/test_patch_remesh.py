@@ -437,3 +437,39 @@ def test_nearest_sample_through_the_grid_is_the_brute_force_one():
             for x, y in q:
                 assert _nearest_sq_grid(x, y, ps, offs, g[0], g[1], g[2], int(g[3]), int(g[4])) == \
                     _nearest_sq(x, y, np.ascontiguousarray(pts))
+
+
+def test_a_patch_with_a_hole_is_meshed_around_it():
+    """A patch can hold a hole: old cells inside it that its region does not hold (an island
+    wider than the region's rings, :func:`_region`).  Its loops go to Gmsh counter-clockwise,
+    the hole's too; a hole given clockwise made a face that OpenCASCADE's fragment did not cut
+    with the new crack ("a crack is not embedded in the patch mesh"), so every such remesh fell
+    back.  Here a crack grows in a square region with a square hole: the patch covers the
+    region but the hole, and the crack's facets are edges of its triangles."""
+    import gmsh
+
+    from hydrofrac.meshes.patch import MeshArrays, _edges, _patch
+    n = 10
+    xs = np.linspace(0.0, 1.0, n + 1)
+    nodes = np.column_stack([c.ravel() for c in np.meshgrid(xs, xs)])
+    tris = []
+    for j in range(n):
+        for i in range(n):
+            if not (3 <= i < 7 and 3 <= j < 7):  # (the hole: 0.4 x 0.4)
+                a, b, c, d = j * (n + 1) + i, j * (n + 1) + i + 1, (j + 1) * (n + 1) + i, (j + 1) * (n + 1) + i + 1
+                tris += [(a, b, d), (a, d, c)]
+    seg = (PATH, np.array([0.15, 0.2]), np.array([0.15, 0.6]))
+    law = SizeLaw(h_crack=0.05, h_far=0.2, grading=0.3)
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        near, xy, new_t, lines, why = _patch(gmsh, MeshArrays(nodes, np.array(tris), {}), {PATH: np.array(seg[1:])},
+                                             [seg], 5.0, law, crack_tags={PATH})
+    finally:
+        gmsh.finalize()
+    assert why is None, why
+    assert near.all()  # every old cell of the region is replaced
+    p, q, r = xy[new_t[:, 0]], xy[new_t[:, 1]], xy[new_t[:, 2]]
+    area = 0.5 * ((q - p)[:, 0] * (r - p)[:, 1] - (q - p)[:, 1] * (r - p)[:, 0])
+    assert np.all(area > 0) and area.sum() == pytest.approx(1.0 - 0.16, rel=1e-12)  # the hole stays empty
+    assert np.isin(_edge_key(lines[PATH]), _edge_key(_edges(new_t))).all() and len(lines[PATH]) >= 8
