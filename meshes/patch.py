@@ -592,11 +592,10 @@ def _patch(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], added, radiu
 
     model = gmsh.model
     model.add("patch")
-    # the loops come from a conforming mesh's boundary and are oriented below: OpenCASCADE's
-    # fixing of wire and face orientation has nothing to fix (the same meshes on the demo's and
-    # the re-fracture's patches), and took 60 % of addPlaneSurface (docs/benchmarks.md, "Cheaper
-    # remeshes with the same results"); a face it would still have fixed fails the checks below,
-    # and the caller remeshes
+    # the loops come from a conforming mesh's boundary: OpenCASCADE's fixing of wire and face
+    # orientation changed none of the demo's and the re-fracture's patches, and took 60 % of
+    # addPlaneSurface (docs/benchmarks.md, "Cheaper remeshes with the same results"); a face it
+    # would have fixed fails the checks below, and the caller remeshes
     gmsh.option.setNumber("Geometry.OCCAutoFix", 0)
     occ = model.occ
     point_of = {}
@@ -607,17 +606,12 @@ def _patch(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], added, radiu
             point_of[i] = occ.addPoint(float(x), float(y), 0.0)
         return point_of[i]
 
-    # every loop counter-clockwise, holes too: Gmsh's plane surface turns its holes itself, and
-    # a hole given clockwise (as the walk of _loops along the triangles' edges may give it) made
-    # a face that OpenCASCADE's fragment could not cut with the crack lines ("a crack is not
-    # embedded in the patch mesh", wire fixing on or off: tests/test_patch_remesh.py)
-    signed = [_area(old.nodes[loop]) for loop in loops]
+    # (a hole's loop may come out clockwise here; Gmsh then builds a face that the crack lines
+    # do not cut, and the patch fails its checks: docs/benchmarks.md, "A patch with a hole")
     pieces = {}
-    for k, loop in enumerate(loops):
-        if signed[k] < 0:
-            loop = loop[::-1]
+    for loop in loops:
         ids = [occ.addLine(pt(a), pt(b)) for a, b in zip(loop, loop[1:] + loop[:1])]
-        pieces.setdefault(piece_of_node[loop[0]], []).append((abs(signed[k]), occ.addCurveLoop(ids)))
+        pieces.setdefault(piece_of_node[loop[0]], []).append((abs(_area(old.nodes[loop])), occ.addCurveLoop(ids)))
     surfs = []
     for loops_of_piece in pieces.values():
         loops_of_piece.sort(key=lambda al: -al[0])  # the outer loop first, then the holes
