@@ -102,17 +102,38 @@ def _exchange_near(comm, old_cells, old_vertices, new_vertices):
 def _locate(tree, x0, Jinv, pts, k, hint=None):
     """Old cell containing each point (the nearest miss if none) and the point's reference
     coordinates in it; ``hint`` (points moved a hair into the wanted side) picks the cell,
-    the reference coordinates are those of ``pts``.  Returns (cell, Xref, largest miss)."""
+    the reference coordinates are those of ``pts``.  Returns (cell, Xref, largest miss).
+
+    The cells are tried nearest centroid first, ``k`` at a time and then 4 times more, until a
+    cell holds the point or no cell left can: a cell holds only points within its largest
+    centroid-to-vertex distance, so the search ends where the next centroid is farther than the
+    largest of those.  A big cell beside small ones (a graded mesh) can hold a point whose 16
+    nearest centroids are all small cells'; a fixed ``k`` then took the nearest miss, and the
+    answer depended on which old cells a rank held (docs/benchmarks.md, "A patch with a hole")."""
     search = pts if hint is None else hint
-    kk = min(k, x0.shape[0])
-    _, cand = tree.query(search, k=kk)
-    cand = cand.reshape(search.shape[0], kk)
-    ref = np.einsum("nkij,nkj->nki", Jinv[cand], search[:, None, :] - x0[cand])
-    lam = np.concatenate([1 - ref.sum(axis=2, keepdims=True), ref], axis=2).min(axis=2)
-    best = np.argmax(lam, axis=1)  # inside (>= 0) if any; else the nearest miss
-    rows = np.arange(search.shape[0])
-    cell = cand[rows, best]
-    miss = float(max(0.0, -lam[rows, best].min())) if search.shape[0] else 0.0
+    n, m = search.shape[0], x0.shape[0]
+    cell = np.zeros(n, dtype=np.int64)
+    lam_best = np.full(n, -np.inf)
+    todo = np.arange(n)
+    kk = min(k, m)
+    reach = None
+    while todo.size:
+        dist, cand = tree.query(search[todo], k=kk)
+        cand, dist = cand.reshape(todo.size, kk), np.asarray(dist).reshape(todo.size, kk)
+        ref = np.einsum("nkij,nkj->nki", Jinv[cand], search[todo, None, :] - x0[cand])
+        lam = np.concatenate([1 - ref.sum(axis=2, keepdims=True), ref], axis=2).min(axis=2)
+        best = np.argmax(lam, axis=1)  # inside (>= 0) if any; else the nearest miss
+        rows = np.arange(todo.size)
+        cell[todo], lam_best[todo] = cand[rows, best], lam[rows, best]
+        if kk == m:
+            break
+        if reach is None:  # the largest centroid-to-vertex distance of the old cells
+            J = np.linalg.inv(Jinv)
+            corners = x0[:, None, :] + np.concatenate([np.zeros((m, 1, 2)), np.swapaxes(J, 1, 2)], axis=1)
+            reach = float(np.sqrt(((corners - tree.data[:, None, :]) ** 2).sum(axis=2)).max())
+        todo = todo[(lam_best[todo] < -1e-12) & (dist[:, -1] <= reach)]  # (-1e-12: a point on an edge)
+        kk = min(4 * kk, m)
+    miss = float(max(0.0, -lam_best.min())) if n else 0.0
     Xref = np.einsum("nij,nj->ni", Jinv[cell], pts - x0[cell])
     return cell, Xref, miss
 

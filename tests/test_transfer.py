@@ -78,6 +78,33 @@ def test_point_location_by_cell_finds_the_containing_cells():
     assert np.array_equal(cell[strict], ref_cell[strict])
 
 
+def test_point_location_finds_a_big_cell_beside_many_small_ones():
+    """A point inside a big cell whose 16 nearest centroids are all small cells' (a graded
+    mesh; the re-fracture's patches met this) lies in the big cell: the search goes on past the
+    first 16 candidates until no cell left can hold the point.  With the first 16 only, the
+    point took the nearest small cell's polynomial, extrapolated, and the answer depended on
+    which old cells a rank held (a 1-vs-2-rank difference of 1 % in one cell)."""
+    from scipy.spatial import cKDTree
+
+    from hydrofrac.transfer import _locate
+    big = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    small = []  # 40 cells of 0.02 beyond the big cell's long edge, near the point
+    for i in range(40):
+        c = np.array([0.5, 0.5]) + 0.03 * np.array([np.cos(i * 0.157) + 1.0, np.sin(i * 0.157) + 1.0])
+        small.append(np.array([c, c + [0.02, 0.0], c + [0.0, 0.02]]))
+    verts = np.array([big] + small)
+    x0 = verts[:, 0]
+    J = np.stack([verts[:, 1] - verts[:, 0], verts[:, 2] - verts[:, 0]], axis=2)
+    Jinv = np.linalg.inv(J)
+    cent = verts.mean(axis=1)
+    pts = np.array([[0.49, 0.49], [0.2, 0.7], [0.1, 0.1]])
+    _, near16 = cKDTree(cent).query(pts[:1], k=16)
+    assert 0 not in near16  # (the case: the big cell is not among the first candidates)
+    cell, Xref, miss = _locate(cKDTree(cent), x0, Jinv, pts, 16)
+    assert miss == 0.0 and np.all(cell == 0), (cell, miss)
+    np.testing.assert_allclose(Xref, pts, rtol=0, atol=1e-14)  # (the big cell's map is the identity)
+
+
 def test_remesh_of_unchanged_geometry_keeps_energy():
     old, _ = cracked_plate(0.05)
     while old.t < 3e-3:
