@@ -606,12 +606,21 @@ def _patch(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], added, radiu
             point_of[i] = occ.addPoint(float(x), float(y), 0.0)
         return point_of[i]
 
-    # (a hole's loop may come out clockwise here; Gmsh then builds a face that the crack lines
-    # do not cut, and the patch fails its checks: docs/benchmarks.md, "A patch with a hole")
+    # a hole's loop turns the way its piece's outer loop does: the walk of _loops along the
+    # triangles' edges gives either way, and with the two opposed Gmsh builds a face that
+    # OpenCASCADE's fragment does not cut with the crack lines (docs/benchmarks.md, "A patch
+    # with a hole"); the outer loops stay as walked, so a patch without a hole is unchanged
+    signed = [_area(old.nodes[loop]) for loop in loops]
+    piece = [piece_of_node[loop[0]] for loop in loops]
+    outer_sign = {}
+    for k in sorted(range(len(loops)), key=lambda k: abs(signed[k])):
+        outer_sign[piece[k]] = signed[k] > 0  # (the largest loop of each piece comes last)
     pieces = {}
-    for loop in loops:
+    for k, loop in enumerate(loops):
+        if (signed[k] > 0) != outer_sign[piece[k]]:
+            loop = loop[::-1]
         ids = [occ.addLine(pt(a), pt(b)) for a, b in zip(loop, loop[1:] + loop[:1])]
-        pieces.setdefault(piece_of_node[loop[0]], []).append((abs(_area(old.nodes[loop])), occ.addCurveLoop(ids)))
+        pieces.setdefault(piece[k], []).append((abs(signed[k]), occ.addCurveLoop(ids)))
     surfs = []
     for loops_of_piece in pieces.values():
         loops_of_piece.sort(key=lambda al: -al[0])  # the outer loop first, then the holes

@@ -205,6 +205,11 @@ class RefractureMonitor(Monitor):
         # network (with the microcracks that joined it)
         sel = A & ~S & ~K & np.isfinite(T) & np.isfinite(dist)
         arms = sel & np.isin(tag, self.arm_tags(problem))
+        # the fluid's front: a finite volume re-loads the network's nearest part, so no re-loaded
+        # facet lies beyond a network facet that stayed dry (an unlimited supply re-loads far
+        # facets while near ones stay unloaded)
+        dry = A & ~S & ~K & ~np.isfinite(T) & np.isfinite(dist)
+        beyond = int((sel & (dist > dist[dry].min())).sum()) if dry.any() else 0
         from scipy.stats import spearmanr
         rho, rho_net = (float(spearmanr(dist[m], T[m]).correlation) if m.sum() > 2 else float("nan")
                         for m in (arms, sel))
@@ -216,7 +221,7 @@ class RefractureMonitor(Monitor):
                                      if iface.delta_scale.size else 0.0, op=MPI.MIN))
         return {
             "reload_order_spearman": rho, "reloaded_arm_facets": int(arms.sum()),
-            "reload_order_spearman_network": rho_net,
+            "reload_order_spearman_network": rho_net, "reloaded_beyond_dry": beyond,
             # the network connected to the perforations (a microcrack that never joined it has no load)
             "reloaded_facets": int(sel.sum()), "network_facets": int((A & ~S & np.isfinite(dist)).sum()),
             "unconnected_facets": int((A & ~S & ~np.isfinite(dist)).sum()),

@@ -439,18 +439,15 @@ def test_nearest_sample_through_the_grid_is_the_brute_force_one():
                     _nearest_sq(x, y, np.ascontiguousarray(pts))
 
 
-@pytest.mark.xfail(strict=True, reason="known: a hole's loop reaches Gmsh clockwise and the patch fails "
-                   "('a crack is not embedded'); the fix (every loop counter-clockwise) moves the re-fracture's "
-                   "network (docs/benchmarks.md, 'A patch with a hole'); this test passes, and fails as xfail, "
-                   "once it is fixed")
 def test_a_patch_with_a_hole_is_meshed_around_it():
     """A patch can hold a hole: old cells inside it that its region does not hold (an island
     wider than the region's rings, :func:`_region`), or the wellbore.  Here a crack grows in a
-    square region with a square hole: the patch should cover the region but the hole, with the
-    crack's facets edges of its triangles.  Today the hole's loop, walked along the triangles'
-    edges, reaches Gmsh clockwise, Gmsh builds a face that OpenCASCADE's fragment does not cut
-    with the crack, and the patch fails ("a crack is not embedded in the patch mesh"): the
-    remesh retries with a larger patch or remeshes the whole domain."""
+    square region with a square hole: the patch covers the region but the hole, with the
+    crack's facets edges of its triangles.  The hole's loop, walked along the triangles' edges,
+    comes out turning against the outer loop; given to Gmsh so, it made a face that
+    OpenCASCADE's fragment did not cut with the crack, and the patch failed ("a crack is not
+    embedded in the patch mesh"): the remesh retried with a larger patch or remeshed the whole
+    domain (docs/benchmarks.md, "A patch with a hole")."""
     import gmsh
 
     from hydrofrac.meshes.patch import MeshArrays, _edges, _patch
