@@ -57,10 +57,10 @@ def test_reloading_spreads_from_the_perforations(summary):
     assert 10 <= acc["reloaded_facets"] <= acc["network_facets"], acc
     print(f"{summary['variant']}: re-load order Spearman {acc['reload_order_spearman']:.3f} (main cracks), "
           f"{acc['reload_order_spearman_network']:.3f} (network)")
-    # the returning fluid fills the network from the perforations: the re-loaded facets are its
-    # nearest part, none beyond a network facet that stayed dry (with an unlimited supply,
-    # --pump-rate inf, the free growth re-loads 72 facets beyond dry ones; the pre-meshed paths
-    # then re-load all 32 facets instead of 24)
+    # the returning fluid fills the network from the perforations: no re-loaded facet lies
+    # farther along the network than an open facet left unloaded (with an unlimited supply,
+    # --pump-rate inf, the free growth re-loads 14 facets beyond such a one; the pre-meshed
+    # paths then re-load all 32 facets instead of 24)
     assert acc["reloaded_beyond_dry"] == 0, acc
     # and they reach f_p > 0.5 in the order of their distance along the network (the connected
     # pressure factor and the waves set this order under either supply).  Not asserted for the
