@@ -670,17 +670,23 @@ class GrowthDriver(RemeshDriver):
         return (self._at_vertex(C[k], A[k], E[k], p), e / np.linalg.norm(e))
 
     def _at_vertex(self, x, a, e, p):
-        """The meeting point ``x`` on the crack segment a -> a + e, moved onto the nearer of its
-        ends (a vertex of the crack met, a point of the geometry) when it lies within
-        ``SNAP * da`` of it.  Gmsh keeps both points, and an edge between them as short as
-        their distance: in the full-size re-fracture a tip that met a grown path 0.4 mm from
-        its vertex cut the step 43x (docs/studies/growth.md, "Junctions").  A vertex outside
-        the tips' region (``inside``: the wall end of a perforation) is no place to meet: the
-        point returned is then the tip's own ``p``, and the tip stops where it is
-        (:meth:`_extend`)."""
-        b = a + e
-        da_, db_ = np.linalg.norm(x - a), np.linalg.norm(x - b)
-        v, dv = (a, da_) if da_ <= db_ else (b, db_)
+        """The meeting point ``x`` on the crack segment a -> a + e, moved onto the nearest point
+        of the geometry on that segment (its ends, vertices of the crack met, and the points
+        where other cracks already meet it or leave it) when it lies within ``SNAP * da`` of it.
+        Gmsh keeps both points, and an edge between them as short as their distance: in the
+        full-size re-fracture a tip that met a grown path 0.4 mm from its vertex cut the step
+        43x, and one that met a perforation 1.4 mm from where another tip had met it cut it 11x
+        (docs/model.md, "Crossing or arrest"; docs/benchmarks.md, "A junction beside a
+        junction").  A vertex outside the tips' region (``inside``: the wall end of a
+        perforation) is no place to meet: the point returned is then the tip's own ``p``, and
+        the tip stops where it is (:meth:`_extend`)."""
+        ee = max(float(e @ e), 1e-300)
+        P = np.array([q for pth in self.paths for q in pth], float).reshape(-1, 2)
+        u = np.clip((P - a) @ e / ee, 0.0, 1.0)
+        V = np.vstack([a, a + e, P[np.hypot(*(P - a - u[:, None] * e).T) < 1e-7]])  # (1 nm snap)
+        dist = np.hypot(*(V - x).T)
+        k = int(np.argmin(dist))
+        v, dv = V[k], dist[k]
         if not dv < SNAP * self.da:
             return x
         if self.inside is not None and not self.inside(v):
@@ -798,10 +804,12 @@ class GrowthDriver(RemeshDriver):
         is arrested there (it may cross later: :meth:`_cross`)."""
         start = np.asarray(self.paths[i][-1], float)
         hit = self._crossing(start, point, i)
-        if hit is not None and np.linalg.norm(hit[0] - start) < SNAP * self.da:
+        if hit is not None and (np.linalg.norm(hit[0] - start) < SNAP * self.da
+                                or self._leaves_along(hit[0], start)):
             # the crack met is closer than SNAP * da to the tip (a tip that starts on one crack
             # next to another): the segment would be a sliver (a 0.3 mm one gave a 1000x smaller
-            # step), so the tip stops where it is, arrested for good (it does not cross)
+            # step), so the tip stops where it is, arrested for good (it does not cross); so
+            # does one whose segment, moved onto a junction, would lie along a crack from there
             self.tips[i].point, self.tips[i].active = start.copy(), False
             self.tree.append({"event": "arrest", "t": solver.t, "parent": i, "child": None,
                               "angle_deg": None, "speed": None, "point": start.tolist()})
@@ -820,6 +828,22 @@ class GrowthDriver(RemeshDriver):
         self.modes.append(self._tip_mode(i))
         self.paths[i].append(np.asarray(point, float).copy())
         self.events.append((solver.t, i, float(np.degrees(theta)), smax))
+
+    def _leaves_along(self, v, p):
+        """Whether a crack path leaves the point ``v`` within ``params.edge_margin`` of the
+        direction to ``p`` (a segment p -> v would lie along it: Gmsh cannot mesh two cracks on
+        one line)."""
+        cos_min = np.cos(np.radians(self.params.edge_margin))
+        r = np.asarray(p, float) - v
+        r = r / max(float(np.linalg.norm(r)), 1e-300)
+        for pth in self.paths:
+            for j, q in enumerate(pth):
+                if np.linalg.norm(np.asarray(q) - v) < 1e-7:  # (points are snapped to 1 nm)
+                    for w in pth[max(j - 1, 0):j] + pth[j + 1:j + 2]:
+                        w = np.asarray(w, float) - v
+                        if float(w @ r) >= cos_min * float(np.linalg.norm(w)):
+                            return True
+        return False
 
     def _tip_mode(self, i):
         """(mode mixity [deg], loaded) of tip ``i``'s crack before it extends (collective):

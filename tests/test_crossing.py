@@ -172,6 +172,61 @@ def test_a_tip_meets_a_crack_at_its_vertex_when_near_it():
     assert len(d.paths[0]) == 2 and not d.tips[0].active and 0 not in d.arrested
 
 
+def test_a_tip_meets_a_crack_where_another_one_meets_it_when_near_it():
+    """A meeting point within SNAP * Δa of the point where another crack already meets the
+    crack met (or leaves it) moves onto that point, though it is no vertex of the crack met:
+    in the full-size re-fracture a tip met a perforation 1.4 mm from where another tip had met
+    it and crossed it, and the step fell 11x.  Farther away it stays where the segment crosses."""
+    from types import SimpleNamespace as NS
+    da = 0.2
+    perforation = np.array([[-0.4, 0.0], [-0.1, 0.0]])  # no vertex between its ends
+    junction = np.array([-0.2397, 0.0])  # where another tip met it, and its crossing starts
+
+    def driver():
+        d = GrowthDriver(lambda polylines: NS(), [Tip(np.array([-0.2, -0.3]), np.array([0.0, 1.0]))],
+                         GrowthParams(r=0.1), da=da, threshold=1.0, tags=[300], obstacles=[perforation])
+        d.paths[0] = [np.array([-0.2, -0.3]), np.array([-0.2, -0.1])]
+        d.tips[0].point = d.paths[0][-1].copy()
+        d.paths.append([np.array([-0.2397, 0.3]), junction.copy()])  # the tip that met it from above
+        d.paths.append([junction.copy(), np.array([-0.3, -0.1])])  # its crossing, down and away
+        d.tips += [Tip(junction.copy(), np.array([0.0, -1.0]), False), Tip(np.array([-0.3, -0.1]), np.array([-1.0, -1.0]))]
+        d.tags += [301, 302]
+        return d
+
+    start = np.array([-0.2, -0.1])
+    for miss, snapped in ((0.0014, True), (1.5 * SNAP * da, False)):
+        d = driver()
+        x = junction[0] + miss  # where the segment crosses the perforation
+        d._extend(NS(t=1e-3), 0, start + 2 * (np.array([x, 0.0]) - start), 0.0, 2e6)
+        assert 0 in d.arrested and not d.tips[0].active
+        np.testing.assert_allclose(d.paths[0][-1], junction if snapped else [x, 0.0], atol=1e-9)
+
+
+def test_a_tip_moved_onto_a_junction_along_a_crack_from_there_stops():
+    """A tip that starts on a crack's vertex and heads back, 16° off that crack, to meet another
+    crack 16 mm from where the first leaves it (the full-size re-fracture at h_crack = 0.0415 m)
+    would move onto that junction, and its segment would lie on the first crack: it stops
+    where it is, for good.  Left where it met the crack, it made a 16° wedge whose cells cut
+    the step 8x."""
+    from types import SimpleNamespace as NS
+    da = 0.083
+    arm = np.array([[0.0038, -0.9809], [-0.0031, -1.0636]])  # the crack met
+    v = np.round(arm[0] + 0.6610 * (arm[1] - arm[0]), 9)  # where the first crack leaves it
+    p = np.array([0.0371, -1.0035])  # that crack's next vertex, where the tip starts
+    d = GrowthDriver(lambda polylines: NS(), [Tip(np.array([0.2, -0.9]), np.array([-1.0, -0.5]))],
+                     GrowthParams(r=0.1), da=da, threshold=1.0, tags=[300], obstacles=[arm])
+    d.paths[0] = [np.array([0.2, -0.9]), p.copy()]
+    d.tips[0].point = p.copy()
+    d.paths.append([v.copy(), p.copy(), np.array([0.07, -0.93])])  # the first crack, from the junction
+    d.tips.append(Tip(np.array([0.07, -0.93]), np.array([1.0, 1.0])))
+    d.tags.append(301)
+    meet = np.array([0.000526157, -1.020041417])  # 16 mm from the junction, within SNAP * da
+    assert np.linalg.norm(meet - v) < SNAP * da
+    d._extend(NS(t=1e-3), 0, p + 1.5 * (meet - p), 0.0, 2e6)
+    assert len(d.paths[0]) == 2 and not d.tips[0].active and 0 not in d.arrested
+    np.testing.assert_allclose(d.tips[0].point, p)
+
+
 @pytest.mark.parametrize("angle, crosses", [(45.0, False), (47.0, False), (52.0, False), (35.0, False),
                                             (-30.0, True), (60.0, True)])
 def test_a_crossing_does_not_run_along_the_crack_it_crosses(angle, crosses):
