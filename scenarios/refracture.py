@@ -190,10 +190,8 @@ class RefractureMonitor(Monitor):
         iface, hyd, comm, solver = problem.interface, problem.hydraulics, problem.comm, problem.solver
         # order of re-loading against the distance along the network (gathered on all ranks)
         still = self.still_loaded if self.still_loaded is not None else np.zeros(self.t_reach.size, bool)
-        # (open: a facet's mean opening reaches delta_bar' delta~, where its own f_p is 1)
-        is_open = iface.state[1].mean(axis=1) >= hyd.scale if iface.facets.size else np.zeros(0, bool)
         parts = comm.allgather((hyd.vertices, iface.length, hyd.network, hyd.source, self.t_reach, still,
-                                iface.crack_tag, is_open))
+                                iface.crack_tag))
         V = np.concatenate([p[0] for p in parts]).reshape(-1, 2)
         L = np.concatenate([p[1] for p in parts])
         A = np.concatenate([p[2] for p in parts]).astype(bool)
@@ -201,19 +199,12 @@ class RefractureMonitor(Monitor):
         T = np.concatenate([p[4] for p in parts])
         K = np.concatenate([p[5] for p in parts]).astype(bool)
         tag = np.concatenate([p[6] for p in parts])
-        O = np.concatenate([p[7] for p in parts]).astype(bool)
         dist = network_distance(V, L, A, S)
         # the order counts the facets that were unloaded when the load returned: on the main
         # cracks (the arms grown from the perforations, the paper's claim), and on the whole
         # network (with the microcracks that joined it)
         sel = A & ~S & ~K & np.isfinite(T) & np.isfinite(dist)
         arms = sel & np.isin(tag, self.arm_tags(problem))
-        # the fluid's front: a finite volume fills the network from the perforations, so no
-        # re-loaded facet lies farther along it than an open facet left unloaded (a closed facet
-        # stays unloaded behind the front; an unlimited supply re-loads far facets while near
-        # open ones wait); equal distances, to 1e-6 of the shortest facet, are the front itself
-        dry = A & ~S & ~K & O & ~np.isfinite(T) & np.isfinite(dist)
-        beyond = int((sel & (dist > dist[dry].min() + 1e-6 * L.min())).sum()) if dry.any() else 0
         from scipy.stats import spearmanr
         rho, rho_net = (float(spearmanr(dist[m], T[m]).correlation) if m.sum() > 2 else float("nan")
                         for m in (arms, sel))
@@ -225,7 +216,7 @@ class RefractureMonitor(Monitor):
                                      if iface.delta_scale.size else 0.0, op=MPI.MIN))
         return {
             "reload_order_spearman": rho, "reloaded_arm_facets": int(arms.sum()),
-            "reload_order_spearman_network": rho_net, "reloaded_beyond_dry": beyond,
+            "reload_order_spearman_network": rho_net,
             # the network connected to the perforations (a microcrack that never joined it has no load)
             "reloaded_facets": int(sel.sum()), "network_facets": int((A & ~S & np.isfinite(dist)).sum()),
             "unconnected_facets": int((A & ~S & ~np.isfinite(dist)).sum()),

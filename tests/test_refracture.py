@@ -57,17 +57,15 @@ def test_reloading_spreads_from_the_perforations(summary):
     assert 10 <= acc["reloaded_facets"] <= acc["network_facets"], acc
     print(f"{summary['variant']}: re-load order Spearman {acc['reload_order_spearman']:.3f} (main cracks), "
           f"{acc['reload_order_spearman_network']:.3f} (network)")
-    # the returning fluid fills the network from the perforations: no re-loaded facet lies
-    # farther along the network than an open facet left unloaded (with an unlimited supply,
-    # --pump-rate inf, the free growth re-loads 14 facets beyond such a one; the pre-meshed
-    # paths then re-load all 32 facets instead of 24)
-    assert acc["reloaded_beyond_dry"] == 0, acc
-    # and they reach f_p > 0.5 in the order of their distance along the network (the connected
-    # pressure factor and the waves set this order under either supply).  Not asserted for the
-    # free growth at this size: 9 of its 13 re-loaded facets, within 0.12 m of the
-    # perforations, re-load within 5 steps in an order set by each arm's opening (Spearman
-    # 0.73, and 0.84 with an unlimited supply: docs/benchmarks.md, "Point location in a graded
-    # mesh"); the full-size free growth gives 0.98 on the main cracks.
+    # (with an unlimited supply, --pump-rate inf, the free growth keeps the load on 15 facets
+    # through the removal, and the first assertion fails)
+    # Facets reach f_p > 0.5 in the order of their distance along the network from the
+    # perforations: the returning fluid fills the network from them.  Not asserted for the free
+    # growth at this size: 9 of its 13 re-loaded facets, within 0.12 m of the perforations,
+    # re-load within 5 steps in an order set by each arm's opening (Spearman 0.73; 0.84 with an
+    # unlimited supply, so the bound would not tell the two apart).  At full size the free
+    # growth gives a median of 0.98 on the main cracks over seven mesh sizes
+    # (docs/benchmarks.md, "The re-load order over seven mesh sizes, again").
     if summary["variant"] != "growth":
         assert acc["reload_order_spearman"] > 0.9, acc
         assert acc["reload_order_spearman_network"] > 0.9, acc
