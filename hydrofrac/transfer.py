@@ -109,7 +109,8 @@ def _locate(tree, x0, Jinv, pts, k, hint=None):
     centroid-to-vertex distance, so the search ends where the next centroid is farther than the
     largest of those.  A big cell beside small ones (a graded mesh) can hold a point whose 16
     nearest centroids are all small cells'; a fixed ``k`` then took the nearest miss, and the
-    answer depended on which old cells a rank held (docs/benchmarks.md, "A patch with a hole")."""
+    answer depended on which old cells a rank held (docs/benchmarks.md, "Point location in a
+    graded mesh")."""
     search = pts if hint is None else hint
     n, m = search.shape[0], x0.shape[0]
     cell = np.zeros(n, dtype=np.int64)
