@@ -523,6 +523,18 @@ def _record_json(data: dict) -> str:
         return "[\n  " + ",\n  ".join(one(x) for x in v) + "\n ]" if isinstance(v, list) and v else one(v)
     return "{\n" + ",\n".join(f" {one(k)}: {entry(v)}" for k, v in data.items()) + "\n}\n"
 
+_SNAP_TOL = 1e-7  # (crack points are snapped to 1 nm)
+
+
+def _through(line, x):
+    """(segment starts, segment vectors, indices of the segments of ``line`` that pass within
+    1e-7 of the point ``x``)."""
+    a, e = line[:-1], np.diff(line, axis=0)
+    ee = np.maximum((e * e).sum(axis=1), 1e-300)
+    u = np.clip(((x - a) * e).sum(axis=1) / ee, 0.0, 1.0)
+    return a, e, np.flatnonzero(np.linalg.norm(a + u[:, None] * e - x, axis=1) <= _SNAP_TOL)
+
+
 class GrowthDriver(RemeshDriver):
     """Free crack growth with remeshing, as a ``remesh`` hook of :func:`hydrofrac.run.run`.
 
@@ -683,7 +695,7 @@ class GrowthDriver(RemeshDriver):
         ee = max(float(e @ e), 1e-300)
         P = np.array([q for pth in self.paths for q in pth], float).reshape(-1, 2)
         u = np.clip((P - a) @ e / ee, 0.0, 1.0)
-        V = np.vstack([a, a + e, P[np.hypot(*(P - a - u[:, None] * e).T) < 1e-7]])  # (1 nm snap)
+        V = np.vstack([a, a + e, P[np.hypot(*(P - a - u[:, None] * e).T) < _SNAP_TOL]])
         dist = np.hypot(*(V - x).T)
         k = int(np.argmin(dist))
         v, dv = V[k], dist[k]
@@ -805,7 +817,7 @@ class GrowthDriver(RemeshDriver):
         start = np.asarray(self.paths[i][-1], float)
         hit = self._crossing(start, point, i)
         if hit is not None and (np.linalg.norm(hit[0] - start) < SNAP * self.da
-                                or self._leaves_along(hit[0], start)):
+                                or self._leaves_along(hit[0], start)[0]):
             # the crack met is closer than SNAP * da to the tip (a tip that starts on one crack
             # next to another): the segment would be a sliver (a 0.3 mm one gave a 1000x smaller
             # step), so the tip stops where it is, arrested for good (it does not cross); so
@@ -828,22 +840,6 @@ class GrowthDriver(RemeshDriver):
         self.modes.append(self._tip_mode(i))
         self.paths[i].append(np.asarray(point, float).copy())
         self.events.append((solver.t, i, float(np.degrees(theta)), smax))
-
-    def _leaves_along(self, v, p):
-        """Whether a crack path leaves the point ``v`` within ``params.edge_margin`` of the
-        direction to ``p`` (a segment p -> v would lie along it: Gmsh cannot mesh two cracks on
-        one line)."""
-        cos_min = np.cos(np.radians(self.params.edge_margin))
-        r = np.asarray(p, float) - v
-        r = r / max(float(np.linalg.norm(r)), 1e-300)
-        for pth in self.paths:
-            for j, q in enumerate(pth):
-                if np.linalg.norm(np.asarray(q) - v) < 1e-7:  # (points are snapped to 1 nm)
-                    for w in pth[max(j - 1, 0):j] + pth[j + 1:j + 2]:
-                        w = np.asarray(w, float) - v
-                        if float(w @ r) >= cos_min * float(np.linalg.norm(w)):
-                            return True
-        return False
 
     def _tip_mode(self, i):
         """(mode mixity [deg], loaded) of tip ``i``'s crack before it extends (collective):
@@ -921,34 +917,34 @@ class GrowthDriver(RemeshDriver):
         there (a tip arrested on a crack moves onto a vertex of it within ``SNAP * da``, where
         the crack may turn, so the far side of one of its segments can hold the other's
         direction), or a segment through it.  It would when it leaves within
-        ``params.edge_margin`` of that crack, or when its end would move onto that crack: an
-        end within ``SNAP * da`` of a crack meets it (:meth:`_crossing`), so up to
-        asin(SNAP) = 14.5° off a crack the segment would end on it (the full-size re-fracture
-        at h_crack = 0.0385 m stopped with "path 10 and path 12 overlap" at 5.5° off).  Gmsh
-        cannot mesh two cracks on one line."""
+        ``params.edge_margin`` of that crack (:meth:`_leaves_along`), or when its end would move
+        onto that crack: an end within ``SNAP * da`` of a crack meets it (:meth:`_crossing`), so
+        up to asin(SNAP) = 14.5° off a crack the segment would end on it (the full-size
+        re-fracture at h_crack = 0.0385 m stopped with "path 10 and path 12 overlap" at 5.5°
+        off).  Gmsh cannot mesh two cracks on one line."""
+        along, lines = self._leaves_along(p, q)
+        if along:
+            return True
+        hit = self._crossing(p, q, None) if lines else None
+        return hit is not None and any(_through(line, hit[0])[2].size for line in lines)
+
+    def _leaves_along(self, p, q):
+        """(whether a crack through ``p`` leaves it within ``params.edge_margin`` of the direction
+        to ``q``, the cracks through ``p``): along one, a segment p -> q would lie on it."""
         cos_min = np.cos(np.radians(self.params.edge_margin))
-        tol = 1e-7  # (points are snapped to 1 nm)
         d = (q - p) / np.linalg.norm(q - p)
-
-        def through(line, x):  # the segments of ``line`` that pass within tol of x
-            a, e = line[:-1], np.diff(line, axis=0)
-            ee = np.maximum((e * e).sum(axis=1), 1e-300)
-            u = np.clip(((x - a) * e).sum(axis=1) / ee, 0.0, 1.0)
-            return a, e, np.flatnonzero(np.linalg.norm(a + u[:, None] * e - x, axis=1) <= tol)
-
-        lines = []  # the cracks through p
+        lines = []
         for line in list(self.obstacles) + [np.asarray(pth, float) for pth in self.paths if len(pth) > 1]:
-            a, e, ks = through(line, p)
+            a, e, ks = _through(line, p)
             if ks.size:
                 lines.append(line)
             for k in ks:  # the directions from p along the crack: to the segment's ends
                 for v in (a[k], a[k] + e[k]):
                     r = v - p
                     n = np.linalg.norm(r)
-                    if n > tol and float(r @ d) >= cos_min * n:
-                        return True
-        hit = self._crossing(p, q, None) if lines else None
-        return hit is not None and any(through(line, hit[0])[2].size for line in lines)
+                    if n > _SNAP_TOL and float(r @ d) >= cos_min * n:
+                        return True, lines
+        return False, lines
 
     def current_speeds(self):
         """Each tip's current speed [m/s]: that of its last extension (None before its second).
