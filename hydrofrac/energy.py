@@ -140,16 +140,15 @@ class EnergyAccount:
     def _local_energies(self):
         """This rank's (kinetic, strain) sums (matrix-free)."""
         s = self.solver
-        with s.x.localForm() as xl:
-            return np.array(s.matfree.energies(xl.array_r, s.state0))
+        with s.read_local(s.x) as X:
+            return np.array(s.matfree.energies(X, s.state0))
 
     def _local_rates(self):
         """This rank's (power in, power out, upwind dissipation) sums (matrix-free); updates the
         ghosts first."""
         s = self.solver
         s.update_ghosts(s.x)
-        with s.x.localForm() as xl:
-            X = xl.array_r
+        with s.read_local(s.x) as X:
             r = np.array(s.matfree.boundary_rates(X, s.t, s.sigma0))
             r[2] += s.matfree.dissipation_rate(X)
         return r

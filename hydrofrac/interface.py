@@ -185,6 +185,17 @@ def crack_facet_indices(mesh, facet_tags, cracks: Sequence[Crack]):
     return np.unique(idx).astype(np.int32)
 
 
+def _sum(dt, coefficients, rates):
+    """dt sum_j a_j r_j over the nonzero coefficients (None: none)."""
+    terms = [(a, r) for a, r in zip(coefficients, rates) if a]
+    if not terms:
+        return None
+    out = (dt * terms[0][0]) * terms[0][1]
+    for a, r in terms[1:]:
+        out += (dt * a) * r
+    return out
+
+
 class Interface:
     """Interfacial damage model on the crack facets of a :class:`~hydrofrac.solver.Solver`.
 
@@ -344,6 +355,7 @@ class Interface:
                                                self._phi[1], self._cells[0], self._cells[1], self._dofs[0],
                                                self._dofs[1])
         self._nb = self._phi[0].shape[2]
+        self._ader = None  # ADER's step, cells, weighted facet data and predictor values (ader_step)
         self._facets = kernels.Facets(self._P, self._I, self.nq, self._nb)
         c, d = contact, damage
         self._laws = kernels.Laws(bool(c.regularized), float(c.delta0), float(c.w0),
@@ -440,18 +452,19 @@ class Interface:
         z = self.state if z is None else z
         # (views of a local form are used only inside its context: petsc4py releases the
         # array when the view is freed, which must not outlive the restored local form)
-        with x.localForm() as xl:
-            T = self.targets(xl.array_r, z, t, T)
+        with self.solver.read_local(x) as X:
+            T = self.targets(X, z, t, T)
         if store:
             self.last = T
         return T
 
-    def _stage(self, X, t, Rc, nowned):
-        """The compiled pass over the crack facets; returns the state rates."""
+    def _stage(self, X, t, Rc, nowned, facets=None):
+        """The compiled pass over the crack facets (``facets``: the packed facet data, by default
+        this interface's own); returns the state rates."""
         z = self.stage_state
         rates = np.empty((4,) + z.shape[1:])  # (damage, opening, slip, free opening) rates
         with self._r.localForm() as rl:  # zero except between a stage and its finish
-            kernels.interface_stage_flat(X, Rc, rl.array, nowned, rates, *self._facets, z[0], z[1],
+            kernels.interface_stage_flat(X, Rc, rl.array, nowned, rates, *(facets or self._facets), z[0], z[1],
                                          *self._separation(t), *self._laws)
         return rates
 
@@ -514,6 +527,68 @@ class Interface:
         halo = self._finish(out, self.owned_cells)
         self.solver.timers.add("interface kernel", time.perf_counter() - t0 - halo)
         return rates
+
+    #: ADER's stages for the crack interfaces, by the bulk's degree p (3 for p >= 3): an explicit
+    #: Runge-Kutta scheme (c, A, b) of order min(p + 1, 4), ADER's own order in the bulk.  The
+    #: flux of stage k is taken from the cells' Taylor predictor at t + c_k dt and weighed by
+    #: b_k dt; the state follows the scheme.  p = 1: Ralston's pair (quadrature exact for fluxes
+    #: quadratic in time); p = 2: Kutta's third-order scheme; p = 3: the classical fourth-order
+    #: one (both Simpson's rule for the flux, exact for cubics).  docs/benchmarks.md, "ADER with
+    #: crack interfaces".
+    ADER_STAGES = {
+        1: ((0.0, 2.0 / 3.0), ((), (2.0 / 3.0,)), (0.25, 0.75)),
+        2: ((0.0, 0.5, 1.0), ((), (0.5,), (-1.0, 2.0)), (1.0 / 6.0, 2.0 / 3.0, 1.0 / 6.0)),
+        3: ((0.0, 0.5, 0.5, 1.0), ((), (0.5,), (0.0, 0.5), (0.0, 0.0, 1.0)),
+            (1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0)),
+    }
+
+    def ader_step(self, X, t, dt, R, taylor):
+        """ADER (the solver's scheme "ader"): add the time integral over [t, t + dt] of the crack
+        facets' flux to the cell residual ``R`` of the owned cells, and to the dof-vector residual
+        for ghost cells (:meth:`fold_received` completes it), and return the state at t + dt.
+        The stages are :data:`ADER_STAGES`' for the solver's degree: stage k reads the cells'
+        Taylor predictor at t + c_k dt (``taylor(X, Q, cells, tau)``,
+        :meth:`hydrofrac.matfree.MatrixFreeOperator.taylor_values`; ``X`` itself, the local
+        values with ghosts, at c_k = 0) with the state z_n + dt sum_j A_kj r_j, and its
+        quadrature weights carry b_k dt.  The new state z_n + dt sum_k b_k r_k is made
+        admissible by :meth:`advance`, as every stage's."""
+        t0 = time.perf_counter()
+        c, A, b = self.ADER_STAGES[min(self.solver.degree, 3)]
+        if self._ader is None or self._ader[0] != dt:
+            P = self._facets.P
+            weighted = []
+            for bk in b:
+                Pk = P.copy()
+                Pk[:, kernels.WEIGHTS:kernels.WEIGHTS + self.nq] *= dt * bk
+                weighted.append(self._facets._replace(P=Pk))
+            Q = self._ader[3] if self._ader is not None else np.zeros_like(X)
+            self._ader = (dt, np.unique(self.cells.reshape(-1)).astype(np.int64), weighted, Q)
+        _, cells, weighted, Q = self._ader
+        z0 = self.state
+        rates = []
+        for k, (ck, Ak, Fk) in enumerate(zip(c, A, weighted)):
+            self.stage_state = self.advance(z0, _sum(dt, Ak, rates)) if k else z0
+            if ck and ck != c[k - 1]:
+                taylor(X, Q, cells, ck * dt)
+            rates.append(self._stage(Q if ck else X, t + ck * dt, R, R.shape[0], Fk))
+        z = self.advance(z0, _sum(dt, b, rates))
+        self.solver.timers.add("interface kernel", time.perf_counter() - t0)
+        return z
+
+    def fold_received(self, R):
+        """ADER: the contributions to owned cells that other ranks computed (the reverse exchange
+        of the dof-vector residual), added to the cell residual ``R``; the residual cleared."""
+        if not self._ghost_flux:
+            return
+        t0 = time.perf_counter()
+        self._r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self.solver.timers.add("halo exchange", time.perf_counter() - t0)
+        with self._r.localForm() as rl:
+            r = rl.array
+            cells = self._recv_cells
+            if cells.size:
+                R[cells] += r.reshape(-1, 5)[self._all_dofs[cells]]
+            r[self._touched] = 0.0
 
     def advance(self, z0, inc):
         """The state z0 + inc, ``inc`` being a stage's or a step's Runge-Kutta combination of

@@ -43,6 +43,7 @@ from .riemann import (bonded_pt, closing_flow_pt, combine_point, damage_rate_pt,
 #       quadrature weights (nq), phi_+ (nq, nb), phi_- (nq, nb)
 #   I (nf, 2 + 2 nb) int: cell_+, cell_-, dofs_+ (nb), dofs_- (nb)
 _NX, _NY, _ZPN, _ZPT, _ZMN, _ZMT, _ZT, _K, _DS, _VS, _TAU, _W = range(12)
+WEIGHTS = _W  # the first of the nq quadrature weights' columns of the packed facet data (the flux's only use)
 
 # The named records the kernels take and return (numba compiles their fields as constants of
 # the record type, so a name costs nothing at run time):

@@ -16,6 +16,7 @@ the ``extensions`` hook and integrate their state ``z`` with the same stages.
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from typing import Dict, Optional, Sequence, Union
 
 import numpy as np
@@ -96,7 +97,7 @@ LOW_STORAGE = {
 }
 
 
-#: ADER (arbitrary high-order derivatives) one-step scheme for the bulk alone, as SeisSol
+#: ADER (arbitrary high-order derivatives) one-step scheme, as SeisSol
 #: uses for linear elastodynamics (Dumbser & Käser 2006, Geophys. J. Int. 167, 319): per
 #: step, a cell-local Taylor predictor from p applications of the local strong-form
 #: operator D (Cauchy-Kovalevskaya; D^(p+1) = 0 on P_p, so the local series is exact), its
@@ -109,7 +110,8 @@ LOW_STORAGE = {
 #: 0.41, 0.25, 0.18, 0.12, but a local derivative costs about half a full application.  The
 #: constants are 0.90 of the "right" limit (rk4's margin at p = 4); 1.5 C blows up and is
 #: stopped (tests/test_bulk.py::test_cfl_*).  Crack interfaces (nonlinear, with their own
-#: state) need the Runge-Kutta schemes.
+#: state) take their flux at two points in the step from the cells' predictor, as SeisSol's
+#: dynamic rupture does (:meth:`hydrofrac.interface.Interface.ader_step`).
 ADER = "ader"
 ADER_CFL = {1: 0.73, 2: 0.69, 3: 0.64, 4: 0.56}
 
@@ -213,7 +215,7 @@ class Solver:
     cfl : CFL constant (default :func:`default_cfl`)
     dt : fixed time step; must not exceed the stability limit
     scheme : "rk4" (default), "ssprk3", a low-storage scheme "lsrk54" / "lsrk144"
-        (:data:`LOW_STORAGE`), or "ader" (:data:`ADER`: the bulk alone, matrix-free)
+        (:data:`LOW_STORAGE`), or "ader" (:data:`ADER`: matrix-free)
     crack_facets : local facet indices excluded from the bulk upwind flux (crack
         interfaces carry their own flux, :mod:`hydrofrac.interface`)
     relaxation : dynamic-relaxation damping c [1/s] (rho dv/dt = div sigma - c rho v),
@@ -586,9 +588,9 @@ class Solver:
         right-hand side and of the RK stages."""
         if extension in self.extensions:
             raise ValueError("this extension is already attached to the solver")
-        if self.scheme == ADER:
-            raise ValueError("scheme 'ader' is for the bulk alone: crack interfaces need a Runge-Kutta scheme "
-                             "(scheme='rk4' or 'lsrk54')")
+        if self.scheme == ADER and not hasattr(extension, "ader_step"):
+            raise ValueError(f"scheme 'ader' needs extensions with an ADER step; {type(extension).__name__} has "
+                             f"none: use a Runge-Kutta scheme (scheme='rk4' or 'lsrk54')")
         self.extensions.append(extension)
 
     # ------------------------------------------------------------------ state
@@ -653,15 +655,39 @@ class Solver:
     def update_ghosts(self, vec):
         """Forward ghost update of ``vec`` (several ranks); of the state x only if it was written
         since its last update (its PETSc state counter, which every write through ``x.array``,
-        a local form or a Vec operation raises, and a ghost update does not): the end of a step,
-        the energy budget and the next step's first stage read the same x."""
+        a local form or a Vec operation raises, and so does the ghost update itself; the counter
+        after the update is kept): the end of a step, the energy budget and the next step's
+        first stage read the same x."""
         if self.comm.size == 1:
             return
         if vec is self.x and self._x_ghosts == vec.stateGet():
             return
+        before = vec.stateGet()
         vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         if vec is self.x:
             self._x_ghosts = vec.stateGet()
+            self._unchanged(before)
+
+    def _unchanged(self, before):
+        """x's state counter rose from ``before`` without a change of its owned values (a ghost
+        update, a read of its local form): ADER's predictor holds, and so do the ghosts if they
+        were current."""
+        after = self.x.stateGet()
+        if self._ader_next is not None and self._ader_next[0] == before:
+            self._ader_next = (after, self._ader_next[1])
+        if self._x_ghosts == before:
+            self._x_ghosts = after
+
+    @contextmanager
+    def read_local(self, vec):
+        """The local values of ``vec`` with its ghosts, to read (its local form).  On several
+        ranks the local form's restore raises the PETSc state counter; for x, a read then keeps
+        ADER's predictor and the ghost update valid (:meth:`update_ghosts`)."""
+        before = vec.stateGet()
+        with vec.localForm() as vl:
+            yield vl.array_r
+        if vec is self.x:
+            self._unchanged(before)
 
     # ------------------------------------------------------------------ operator
     def rhs(self, y, t, out):
@@ -675,8 +701,7 @@ class Solver:
                 self.timers.add("halo exchange", t1 - t0)
                 t0 = t1
             mf = self.matfree
-            with y.localForm() as yl:
-                X = yl.array_r
+            with self.read_local(y) as X:
                 mf.begin(X, t)
                 self.timers.add("bulk operator", time.perf_counter() - t0)
                 # crack interfaces add their owned cells' flux before the inverse mass
@@ -795,6 +820,17 @@ class Solver:
             mf.ader_predictor(x.array, I.array, dt, self.degree)
         mf.integrate_boundary_data(self.t, dt, (self.degree + 2) // 2)
         self.timers.add("rk update", time.perf_counter() - t0)
+        states = []
+        if self.extensions:  # crack interfaces: their flux integrals into R before the facets'
+            self.update_ghosts(x)
+
+            def taylor(X, Q, cells, tau):
+                mf.taylor_values(X, Q, cells, tau, self.degree)
+
+            with self.read_local(x) as X:
+                states = [ext.ader_step(X, self.t, dt, mf.R, taylor) for ext in self.extensions]
+            for ext in self.extensions:
+                ext.fold_received(mf.R)
         if self.comm.size > 1:
             t0 = time.perf_counter()
             I.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
@@ -804,9 +840,12 @@ class Solver:
             mf.begin(il.array_r, self.t, data=False)
         mf.ader_correct(x.array, I.array, dt, self.degree)
         self._ader_next = (x.stateGet(), dt)
+        self.timers.add("bulk operator", time.perf_counter() - t0)
+        for ext, z in zip(self.extensions, states):  # (timed as "state update")
+            ext.state = z
+            ext.end_step(x, self.t + dt, dt)
         self.t += dt
         self.step_count += 1
-        self.timers.add("bulk operator", time.perf_counter() - t0)
 
     # ------------------------------------------------------------------ energy
     def energies(self):

@@ -26,7 +26,7 @@ from .meshes.fractures import (NATURAL, OUTER, PATH, PERFORATION, WELLBORE, Doma
                                check_geometry, fracture_mesh, fracture_points, perforation_points)
 from .network import CrackLine, CrackNetwork
 from .problem import Problem
-from .solver import CFL_DEFAULT, Solver
+from .solver import SCHEMES, Solver
 
 
 def radial_paths(domain: Domain, perforations: Sequence[Perforation], lengths: Sequence[float]):
@@ -93,8 +93,8 @@ class Wellbore:
     growth : free growth from the perforation tips (:class:`Growth`), or None
     volume : V(t), the fluid in the network (:class:`~hydrofrac.hydraulics.HydraulicParams`),
         or None: an unlimited supply at p_h (the paper)
-    scheme : the explicit time scheme (:data:`hydrofrac.solver.CFL_DEFAULT`'s keys; not ADER,
-        which is for the bulk alone)
+    scheme : the explicit time scheme (:data:`hydrofrac.solver.SCHEMES`; ADER's crack interfaces:
+        docs/benchmarks.md, "ADER with crack interfaces")
     cfl : the solver's CFL constant (None: its documented stable value; studies of dt take less)
     """
 
@@ -124,9 +124,8 @@ class Wellbore:
                              f"got {self.pressure!r}")
         if not self.perforations:
             raise ValueError("wellbore: give at least one perforation (the hydraulic source)")
-        if self.scheme not in CFL_DEFAULT:
-            raise ValueError(f"wellbore: scheme must be one of {', '.join(CFL_DEFAULT)}: the cracks' interface is "
-                             f"nonlinear and needs a Runge-Kutta scheme (ADER is for the bulk alone); got {self.scheme!r}")
+        if self.scheme not in SCHEMES:
+            raise ValueError(f"wellbore: scheme must be one of {', '.join(SCHEMES)}; got {self.scheme!r}")
         if self.contact.delta0 is None and self.contact.closing_speed is None:
             # a contact band resolved in time (delta0 = None) spans its steps at the fastest
             # closing the load can drive: faces unloaded from the peak fluid pressure close at

@@ -76,15 +76,16 @@ def test_unknown_scheme(square):
 
 
 def test_ader_refuses_what_it_cannot_step(square):
-    """ADER's predictor is the matrix-free volume kernel, and its step has no place for the
-    crack interfaces' own states or for dynamic relaxation: each is refused up front."""
+    """ADER's predictor is the matrix-free volume kernel, and its step has no place for dynamic
+    relaxation or for an extension without an ADER step: each is refused up front."""
     mesh, _ = square
     with pytest.raises(ValueError, match=r"scheme 'ader' needs the matrix-free operator.*operator='matfree'"):
         Solver(mesh, 1, ROCK, scheme="ader", operator="assembled")
     with pytest.raises(ValueError, match=r"scheme 'ader' has no dynamic relaxation: use relaxation=0"):
         Solver(mesh, 1, ROCK, scheme="ader", relaxation=1e3)
     solver = Solver(mesh, 1, ROCK, scheme="ader")
-    with pytest.raises(ValueError, match=r"scheme 'ader' is for the bulk alone.*scheme='rk4' or 'lsrk54'"):
+    with pytest.raises(ValueError, match=r"scheme 'ader' needs extensions with an ADER step; object has none.*"
+                                         r"scheme='rk4' or 'lsrk54'"):
         solver.attach(object())
 
 
@@ -154,9 +155,8 @@ def test_run_end_time_must_be_positive():
     ("refracture", ["--growth-remesh", "full", "--growth-patch-radius", "4"], "--growth-patch-radius acts only"),
     ("intersection", ["--adapt", "0.05", "--growth-patch-radius", "4"], "adaptive meshes remesh the whole domain"),
     ("intersection", ["--unregularized", "--pressure-factor", "local"], "drop --pressure-factor"),
-    # the time scheme: ADER is for the bulk alone; C above the scheme's documented constant
-    ("intersection", ["--scheme", "ader"], "ADER is for the bulk alone"),
-    ("refracture", ["--scheme", "ader"], "needs a Runge-Kutta scheme"),
+    # the time scheme: C above the scheme's documented constant
+    ("refracture", ["--scheme", "ader", "--degree", "2", "--cfl", "0.7"], "--cfl must be in (0, 0.69] for --scheme ader"),
     ("refracture", ["--scheme", "lsrk54", "--cfl", "1.5"], "--cfl must be in (0, 1.39] for --scheme lsrk54"),
     ("refracture", ["--cfl", "0.9"], "--cfl must be in (0, 0.85] for --scheme rk4"),
     ("intersection", ["--cfl", "nan"], "--cfl must be in"),
@@ -182,12 +182,12 @@ def test_growth_limit_inside_the_perforations_rejected(tmp_path, capsys):
     assert not (tmp_path / "run").exists()
 
 
-def test_wellbore_scheme_must_be_runge_kutta():
-    """A wellbore description with cracks refuses ADER (and a misspelt scheme) when it is made."""
+def test_wellbore_scheme_must_be_known():
+    """A wellbore description refuses a misspelt scheme when it is made, naming the schemes."""
     rf = _scenario("refracture")
-    for bad in ("ader", "RK4"):
-        with pytest.raises(ValueError, match=rf"scheme must be one of rk4, ssprk3, lsrk54, lsrk144: .*got '{bad}'"):
-            rf.description(quick=True, scheme=bad)
+    with pytest.raises(ValueError, match=r"scheme must be one of rk4, ssprk3, lsrk54, lsrk144, ader; got 'RK4'"):
+        rf.description(quick=True, scheme="RK4")
+    assert rf.description(quick=True, scheme="ader").scheme == "ader"
 
 
 def test_refracture_mesh_sizes_are_the_ones_asked_for():

@@ -57,13 +57,17 @@ def test_two_bars(run_python, tmp_path):
     assert_dynamics_hold_penetration(summary)  # the penetration bound is the dynamics', not the clip's
 
 
-@pytest.mark.parametrize("scheme", ["lsrk54", "lsrk144"])
-def test_two_bars_low_storage_schemes(scheme):
+@pytest.mark.parametrize("scheme, nx", [("lsrk54", 80), ("lsrk144", 80), ("ader", 100)])
+def test_two_bars_low_storage_schemes(scheme, nx):
     """Case 9 under the low-storage schemes (the interface state advanced from its accumulated
-    2N increments): the quick two-bar size meets the case-9 tolerances at each scheme's CFL
-    constant, and the exact closing flow holds the penetration (the clip never acts)."""
+    2N increments) and ADER (the contact flux at two points in the step from the cells'
+    predictor): the two-bar case meets the case-9 tolerances at each scheme's CFL constant,
+    and the exact closing flow holds the penetration (the clip never acts).  ADER at P3 takes
+    a 25 % shorter step than rk4 and is a space-time scheme: at the quick size (80 cells) its
+    velocity after the rebound is off by 0.52 %, against rk4's 0.45 % and the case's 0.5 %;
+    with 100 cells by 0.43 % (docs/benchmarks.md, "ADER with crack interfaces")."""
     tb = load_scenario("two_bars")
-    problem = tb.setup(degree=3, nx=80, scheme=scheme)
+    problem = tb.setup(degree=3, nx=nx, scheme=scheme)
     rec = tb.Recorder()
     solver = problem.solver
     solver.update_energy()
@@ -83,14 +87,14 @@ P0 = CONFINEMENT
 SIGMA0 = ((-P0, 0.0), (0.0, -P0))
 
 
-def confined_crack(p, tau=3e-6, nx=20, L=0.1):
+def confined_crack(p, tau=3e-6, nx=20, L=0.1, scheme="rk4"):
     """Strip under uniform confinement sigma0 = -p0 I (traction ends), crack in contact (D = 1,
     closed at the penetration floor) whose separation mode carries S = (-p, 0): a crack
     filled with fluid at pressure p.  tau sets the fracture scales (delta~ = tau s_bar/Z~)."""
     comm = MPI.COMM_WORLD
     mesh, tags = strip(comm, L, nx)
     cracks = [Crack(CRACK, friction=0.6, damage=1.0)]
-    solver = Solver(mesh, 1, ROCK, facet_tags=tags, sigma0=SIGMA0,
+    solver = Solver(mesh, 1, ROCK, facet_tags=tags, sigma0=SIGMA0, scheme=scheme,
                     bcs=[Symmetry(SIDES), Traction(LEFT, stress=SIGMA0), Traction(RIGHT, stress=SIGMA0)],
                     crack_facets=crack_facet_indices(mesh, tags, cracks))
     # (the opening clip off: at the floor eta = 1 and d(delta)/dt = 0 by the dynamics; a narrow
@@ -102,14 +106,16 @@ def confined_crack(p, tau=3e-6, nx=20, L=0.1):
     return solver, iface
 
 
+@pytest.mark.parametrize("scheme", ["rk4", "ader"])
 @pytest.mark.parametrize("excess", [+2e-3, -2e-3])
-def test_contact_opens_iff_pressure_beats_bonded_traction(excess):
+def test_contact_opens_iff_pressure_beats_bonded_traction(excess, scheme):
     """p slightly above -s_B^1 = p0 (by 0.2%, inside the regularisation band w'_0): the crack
     opens, the opening grows and eta -> 0.  Slightly below: it stays closed, at the
-    penetration floor delta'_0 delta~ exactly, with eta = 1."""
+    penetration floor delta'_0 delta~ exactly, with eta = 1.  Under rk4's stages and under
+    ADER's two points in the step."""
     comm = MPI.COMM_WORLD
     p = P0 * (1 + excess)
-    solver, iface = confined_crack(p)
+    solver, iface = confined_crack(p, scheme=scheme)
     floor = iface.contact.delta0 * iface.delta_scale[:, None]
     assert np.allclose(iface.last["s_B"][:, 0], -P0, rtol=1e-12)
     openings, eta_min, eta_max = [], [], []
@@ -168,7 +174,7 @@ def test_contact_separation_transition_continuous():
 # --------------------------------------------------------------------------------------
 # Coulomb friction under a shear pulse
 # --------------------------------------------------------------------------------------
-def sheared_crack(peak_ratio, k=0.6, L=1.0, nx=40, degree=2, T=2e-4):
+def sheared_crack(peak_ratio, k=0.6, L=1.0, nx=40, degree=2, T=2e-4, scheme="rk4"):
     """Strip under uniaxial compression sigma_xx = -p0 (sigma_yy = 0), crack at x = 0 in
     contact (D = 1); an SV pulse V g(t), g = sin^2(pi t/T), enters from the left end
     (velocity BC, v_x = 0 holds the compression), the right end absorbs.  Slider top and
@@ -181,7 +187,7 @@ def sheared_crack(peak_ratio, k=0.6, L=1.0, nx=40, degree=2, T=2e-4):
     tt = np.linspace(0.0, T, 201)
     pulse = PiecewiseLinear(tt, np.sin(np.pi * tt / T) ** 2)
     cracks = [Crack(CRACK, friction=k, damage=1.0)]
-    solver = Solver(mesh, degree, ROCK, facet_tags=tags, sigma0=s0,
+    solver = Solver(mesh, degree, ROCK, facet_tags=tags, sigma0=s0, scheme=scheme,
                     bcs=[Slider(SIDES), Velocity(LEFT, value=(0.0, V), history=pulse), Absorbing(RIGHT, stress=s0)],
                     crack_facets=crack_facet_indices(mesh, tags, cracks))
     iface = Interface(solver, tags, cracks)
@@ -194,16 +200,21 @@ def sheared_crack(peak_ratio, k=0.6, L=1.0, nx=40, degree=2, T=2e-4):
     return solver, iface, slip_exact, t_end, 2 * L / nx
 
 
+@pytest.mark.parametrize("scheme, nx", [("rk4", 40), ("ader", 80)])
 @pytest.mark.parametrize("peak_ratio", [0.5, 2.0])
-def test_friction_stick_slip(peak_ratio):
+def test_friction_stick_slip(peak_ratio, scheme, nx):
     """Below the Coulomb bound (peak shear 0.5 k|sigma_n|) the crack sticks: no slip at all and
     the shear traction stays under k|sigma_n|.  Above it (2 k|sigma_n|) it slips with traction
     exactly k|sigma_n| while slipping, the accumulated slip matches the exact
     (2/Z_s) integral <|s_inc| - k p0> dt within 1%, and the friction dissipation is positive
-    and equals k p0 |slip| (crack length) within 1%."""
+    and equals k p0 |slip| (crack length) within 1%.  Under rk4 and under ADER (the friction
+    law at its two points in the step).  ADER's energy budget, sampled from the states while
+    the step exchanges energy through its predictor, is off by a discretisation error: -2.0e-3
+    and -2.5e-3 of the scale with 40 cells, -2.8e-4 and -4.3e-4 with 80 (order 2.9), so ADER
+    runs the case with 80 (docs/benchmarks.md, "ADER with crack interfaces")."""
     comm = MPI.COMM_WORLD
     k = 0.6
-    solver, iface, slip_exact, t_end, height = sheared_crack(peak_ratio, k=k)
+    solver, iface, slip_exact, t_end, height = sheared_crack(peak_ratio, k=k, nx=nx, scheme=scheme)
     ratio_max, slipping_steps, shear_max = 0.0, 0, 0.0
     while solver.t < t_end:
         solver.step()
