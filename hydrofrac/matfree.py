@@ -422,61 +422,7 @@ def _kernels(nb, nk, contig=False):
             strain += absdet[c] * es
         return 0.5 * kin, 0.5 * strain
 
-    @njit
-    def taylor_values(X, Q, cells, tau, order, dofs, Jinv, mat, Btab, D0, D1):
-        """Q[blocks of ``cells``] = sum_{m=0..order} tau^m/m! D^m X: each listed cell's (owned or
-        ghost) Taylor predictor at the time tau into the step, D the cell-local strong-form
-        operator of ADER's predictor (the derivative passes m >= 1 of ``ader_corrector``, written
-        out the same way, on a few cells: those next to crack facets; one row where the rows are
-        equal)."""
-        u = np.empty((nb, 5))
-        g0 = np.empty((rows, 5))
-        g1 = np.empty((rows, 5))
-        r = np.empty((nb, 5))
-        acc = np.empty((nb, 5))
-        for c in cells:
-            B = Btab[mat[c]]
-            j00, j01, j10, j11 = Jinv[c, 0, 0], Jinv[c, 0, 1], Jinv[c, 1, 0], Jinv[c, 1, 1]
-            for j in range(nb):
-                base = 5 * dofs[c, j]
-                for k in range(5):
-                    u[j, k] = X[base + k]
-                    acc[j, k] = X[base + k]
-            coef = 1.0
-            for m in range(1, order + 1):
-                for i in range(rows):
-                    for k in range(5):
-                        s0 = 0.0
-                        s1 = 0.0
-                        for j in range(nb):
-                            s0 += D0[i, j] * u[j, k]
-                            s1 += D1[i, j] * u[j, k]
-                        g0[i, k] = s0
-                        g1[i, k] = s1
-                for i in range(nb):
-                    iv = i if rows == nb else 0
-                    r[i, 0] = j00 * g0[iv, 2] + j10 * g1[iv, 2] + j01 * g0[iv, 4] + j11 * g1[iv, 4]
-                    r[i, 1] = j00 * g0[iv, 4] + j10 * g1[iv, 4] + j01 * g0[iv, 3] + j11 * g1[iv, 3]
-                    r[i, 2] = j00 * g0[iv, 0] + j10 * g1[iv, 0]
-                    r[i, 3] = j01 * g0[iv, 1] + j11 * g1[iv, 1]
-                    r[i, 4] = j01 * g0[iv, 0] + j11 * g1[iv, 0] + j00 * g0[iv, 1] + j10 * g1[iv, 1]
-                coef *= tau / m
-                for a in range(nb):
-                    t2, t3, t4 = r[a, 2], r[a, 3], r[a, 4]
-                    u[a, 0] = B[0] * r[a, 0]
-                    u[a, 1] = B[1] * r[a, 1]
-                    u[a, 2] = B[2] * t2 + B[3] * t3 + B[4] * t4
-                    u[a, 3] = B[5] * t2 + B[6] * t3 + B[7] * t4
-                    u[a, 4] = B[8] * t2 + B[9] * t3 + B[10] * t4
-                    for k in range(5):
-                        acc[a, k] += coef * u[a, k]
-            for j in range(nb):
-                base = 5 * dofs[c, j]
-                for k in range(5):
-                    Q[base + k] = acc[j, k]
-
     return (volume_and_inverse, facet_fluxes, facet_dissipation, cell_energies, boundary_fluxes, boundary_energy,
-            taylor_values,
             ader_corrector)
 
 
@@ -722,7 +668,7 @@ class MatrixFreeOperator:
 
         # facets: both cells, + side = the cell the normal points away from
         (self._volume, self._facets, self._dissipation, self._energies, self._boundary,
-         self._boundary_energy, self._taylor, self._corrector) = _kernels(nb, self.fnodes.shape[1], self.contiguous)
+         self._boundary_energy, self._corrector) = _kernels(nb, self.fnodes.shape[1], self.contiguous)
         c_off, c_arr = compat.connectivity(mesh, tdim - 1, tdim)
         facets = np.asarray(facets, dtype=np.int64)
         # facets of the outer ghost layer see one cell here: a ghost, so nothing to add
@@ -753,6 +699,7 @@ class MatrixFreeOperator:
         self.R = np.zeros((self.nowned, self.dofs.shape[1], 5))
         self._Rzero = np.zeros_like(self.R)  # (the volume kernel leaves it zero)
         self._D = None  # the nodal derivative matrices (ADER's predictor), when first asked for
+        self._taylor = None  # the cells of taylor_values, their data and work arrays
         self._R_clear = True
         self.Mref = r.Mref
         self.Bmat = solver.material_blocks
@@ -876,12 +823,29 @@ class MatrixFreeOperator:
         self._R_clear = True
 
     def taylor_values(self, x, Q, cells, tau, order):
-        """Q = the cell-local Taylor predictor from ``x`` at the time ``tau`` into the step, on
-        ``cells`` (owned or ghost; ``x``, ``Q``: local arrays with ghosts, the other blocks of
-        Q left as they are): the traces ADER's crack interfaces see inside a step
-        (:meth:`hydrofrac.interface.Interface.ader_step`)."""
-        self._taylor(x, Q, cells, float(tau), int(order), self.dofs, self.Jinv, self.mat, self.Btab,
-                       *self._derivatives())
+        """Q = the cell-local Taylor predictor from ``x`` at the time ``tau`` into the step,
+        sum_{m=0..order} tau^m/m! D^m x, on ``cells`` (owned or ghost; ``x``, ``Q``: local
+        arrays with ghosts, the other blocks of Q left as they are): the traces ADER's crack
+        interfaces see inside a step (:meth:`hydrofrac.interface.Interface.ader_step`).  D is
+        :meth:`local_derivative`'s operator, here the numba volume kernel on those cells'
+        own data (gathered once per list of cells)."""
+        key = id(cells)
+        if self._taylor is None or self._taylor[0] != key:
+            vol = _kernels(self.dofs.shape[1], self.fnodes.shape[1], False)[0]  # (any dof numbering)
+            d = np.ascontiguousarray(self.dofs[cells])
+            idx = (5 * d[:, :, None] + np.arange(5)).reshape(-1)
+            self._taylor = (key, cells, vol, d, idx, np.ascontiguousarray(self.Jinv[cells]),
+                            np.ascontiguousarray(self.invdet[cells]), np.ascontiguousarray(self.mat[cells]),
+                            np.zeros((cells.size, d.shape[1], 5)), np.zeros((2, x.size)))
+        _, _, vol, d, idx, Jinv, invdet, mat, Rzero, work = self._taylor
+        Q[idx] = x[idx]
+        u, coef = x, 1.0
+        for m in range(1, order + 1):
+            out = work[m % 2]
+            vol(out, Rzero, u, d, d.shape[0], self.S0, self.S1, Jinv, invdet, self.Minv_ref, mat, self.Btab)
+            coef *= tau / m
+            Q[idx] += coef * out[idx]
+            u = out
 
     def _derivatives(self):
         """The nodal derivative matrices D_r = Minv_ref S_r (computed when first asked for)."""
