@@ -67,6 +67,16 @@ def _pack_blocks(B):
     return np.concatenate([B[:, 0, 0:1], B[:, 1, 1:2], B[:, 2:, 2:].reshape(-1, 9)], axis=1)
 
 
+@njit
+def _add_blocks(Q, X, src, dofs, coef):
+    """Q[blocks] = X[blocks] + coef * src[blocks] over the dof blocks ``dofs`` (cells, nb)."""
+    for c in range(dofs.shape[0]):
+        for j in range(dofs.shape[1]):
+            b = 5 * dofs[c, j]
+            for k in range(5):
+                Q[b + k] = X[b + k] + coef * src[b + k]
+
+
 @functools.lru_cache(maxsize=None)
 def _kernels(nb, nk, contig=False):
     """The (volume + inverse mass, interior facet flux, facet dissipation, cell energies)
@@ -833,19 +843,19 @@ class MatrixFreeOperator:
         if self._taylor is None or self._taylor[0] != key:
             vol = _kernels(self.dofs.shape[1], self.fnodes.shape[1], False)[0]  # (any dof numbering)
             d = np.ascontiguousarray(self.dofs[cells])
-            idx = (5 * d[:, :, None] + np.arange(5)).reshape(-1)
-            self._taylor = (key, cells, vol, d, idx, np.ascontiguousarray(self.Jinv[cells]),
+            self._taylor = (key, cells, vol, d, np.ascontiguousarray(self.Jinv[cells]),
                             np.ascontiguousarray(self.invdet[cells]), np.ascontiguousarray(self.mat[cells]),
                             np.zeros((cells.size, d.shape[1], 5)), np.zeros((2, x.size)))
-        _, _, vol, d, idx, Jinv, invdet, mat, Rzero, work = self._taylor
-        Q[idx] = x[idx]
-        u, coef = x, 1.0
-        for m in range(1, order + 1):
-            out = work[m % 2]
-            vol(out, Rzero, u, d, d.shape[0], self.S0, self.S1, Jinv, invdet, self.Minv_ref, mat, self.Btab)
+        _, _, vol, d, Jinv, invdet, mat, Rzero, work = self._taylor
+        out = work[0]
+        vol(out, Rzero, x, d, d.shape[0], self.S0, self.S1, Jinv, invdet, self.Minv_ref, mat, self.Btab)
+        _add_blocks(Q, x, out, d, float(tau))
+        coef = float(tau)
+        for m in range(2, order + 1):
+            src, out = out, work[m % 2]
+            vol(out, Rzero, src, d, d.shape[0], self.S0, self.S1, Jinv, invdet, self.Minv_ref, mat, self.Btab)
             coef *= tau / m
-            Q[idx] += coef * out[idx]
-            u = out
+            _add_blocks(Q, Q, out, d, coef)
 
     def _derivatives(self):
         """The nodal derivative matrices D_r = Minv_ref S_r (computed when first asked for)."""
