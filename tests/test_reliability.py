@@ -88,6 +88,8 @@ def _kill_after_checkpoint(cmd, ckpt: Path, ranks=2, timeout=300):
     ("borehole.py", "borehole", ["--scheme", "ader", "--t-end", "1e-2"]),  # ADER: its predictor from the restored state
     # lsrk54: every mesh's step fitted to the growth checks, the restored one too
     ("refracture.py", "refracture", ["--growth", "--scheme", "lsrk54", "--t-end", "4e-4"]),
+    # ADER with cracks: the interface's stages from the restored state and predictor
+    ("refracture.py", "refracture", ["--growth", "--scheme", "ader", "--t-end", "4e-4"]),
 ])
 def test_kill_and_restart_on_two_ranks_ends_as_a_straight_run(tmp_path, script, name, extra):
     """Checkpoints every second (on rank 0's clock, broadcast: a per-rank decision hung here
