@@ -3,8 +3,9 @@ study 1, continued; the plane wave with the CG baseline is
 :mod:`hydrofrac.postprocess.study_work_precision`).
 
 * **Two-bar impact** (verification case 9, ``scenarios/two_bars.py``): p = 1-4 on strips of
-  20, 40 and 80 cells along 2 m; errors of the contact stress (plateau against -Z_d v0) and
-  of the contact duration (against 2L/c_d, in µs).
+  20, 40 and 80 cells along 2 m, with rk4 and with ADER (the contact at the interface's
+  stages from the cells' predictor); errors of the contact stress (plateau against -Z_d v0)
+  and of the contact duration (against 2L/c_d, in µs).
 * **Sneddon** (case 11, ``scenarios/sneddon.py``, quick domain 8a, dynamic relaxation to the
   static state by 3 ms): p = 1-3 (p = 4 on the two coarser meshes) at crack sizes 0.2a, 0.1a,
   0.05a; L2 error of the opening for |x| < 0.9a.
@@ -19,7 +20,8 @@ CG baseline runs on one process, so the study does too.
 
 Writes ``work_precision_bars.csv``, ``work_precision_sneddon.csv`` and one PNG with the
 charts into ``postprocess/results`` (``--out``), and prints the speed-up of DG over CG at 1 %
-error (interpolated on each method's points, measured in the same run).
+error, and of DG's ADER over its rk4 (interpolated on each method's points, measured in the
+same run).
 
     python -m hydrofrac.postprocess.study_work_precision_cracks [--quick] [--out DIR]
 """
@@ -41,6 +43,8 @@ from hydrofrac.postprocess.study_common import log_axes, save_figure, scenario, 
 BARS = {1: (20, 40, 80), 2: (20, 40, 80), 3: (20, 40, 80), 4: (20, 40, 80)}
 SNEDDON = {1: (0.2, 0.1, 0.05), 2: (0.2, 0.1, 0.05), 3: (0.2, 0.1, 0.05), 4: (0.2, 0.1)}
 QUICK_BARS = {1: (20, 40), 2: (20, 40)}
+ADER_BARS = BARS
+QUICK_ADER_BARS = {2: (20, 40)}
 QUICK_SNEDDON = {1: (0.2,), 2: (0.2,)}
 CG_BARS = {1: (20, 40, 80, 160, 320), 2: (20, 40, 80, 160)}
 CG_SNEDDON = {1: (0.2, 0.1, 0.05, 0.025), 2: (0.2, 0.1, 0.05)}
@@ -49,14 +53,15 @@ QUICK_CG_SNEDDON = {1: (0.2,), 2: (0.2,)}
 SNEDDON_SIZE, SNEDDON_H_FAR, T_RAMP, RELAXATION, T_END = 8.0, 1.5, 1.0e-3, 1500.0, 3.0e-3
 
 
-def bars_case(p, nx):
+def bars_case(p, nx, scheme="rk4"):
     tb = scenario("two_bars")
-    problem = tb.setup(degree=p, nx=nx)
+    problem = tb.setup(degree=p, nx=nx, scheme=scheme)
     solver = problem.solver
     rec = tb.Recorder()
     wall = timed_run(problem, 0.75e-3, rec)
     acc = rec.accuracy(problem)
-    return {"method": f"DG P{p}", "family": "DG", "p": p, "size": nx, "dofs": solver.num_dofs,
+    method = f"DG P{p}" if scheme == "rk4" else f"DG P{p} {scheme}"
+    return {"method": method, "family": "DG", "scheme": scheme, "p": p, "size": nx, "dofs": solver.num_dofs,
             "steps": solver.step_count, "wall_s": wall, "stress_rel_error": acc["contact_stress_rel_error"],
             "duration_error_us": abs(acc["duration"] - acc["duration_exact"]) * 1e6,
             "velocity_rel_error": acc["velocity_rel_error"]}
@@ -156,7 +161,7 @@ def plot(bars, sned, png):
                                  (axes[3], sned, "opening_rel_error", "Sneddon opening, L2 relative error")):
         for m in sorted({r["method"] for r in rows}):
             rs = sorted([r for r in rows if r["method"] == m], key=lambda r: r["dofs"])
-            style = "o-" if rs[0]["family"] == "DG" else "s--"
+            style = ("^:" if rs[0].get("scheme") == "ader" else "o-") if rs[0]["family"] == "DG" else "s--"
             ax.loglog([r["wall_s"] for r in rs], [max(r[key], 1e-16) for r in rs], style, label=m)
         ax.set_xlabel("wall time of the run [s]")
         ax.set_ylabel(label)
@@ -183,7 +188,11 @@ def main(argv=None):
                 f"{r['opening_rel_error']:.3%}")
 
     q = args.quick
+    def ader_bars_case(p, nx):
+        return bars_case(p, nx, scheme="ader")
+
     for rows, case, sizes, line in ((bars, bars_case, QUICK_BARS if q else BARS, bars_line),
+                                    (bars, ader_bars_case, QUICK_ADER_BARS if q else ADER_BARS, bars_line),
                                     (bars, cg_bars_case, QUICK_CG_BARS if q else CG_BARS, bars_line),
                                     (sned, sneddon_case, QUICK_SNEDDON if q else SNEDDON, sneddon_line),
                                     (sned, cg_sneddon_case, QUICK_CG_SNEDDON if q else CG_SNEDDON, sneddon_line)):
@@ -204,6 +213,15 @@ def main(argv=None):
             print(f"[study] {name} at {target:.0e} error: DG {dg:.3g} s, CG {cg:.3g} s, "
                   f"speed-up of DG {cg / dg:.3g}" if np.isfinite(dg) and np.isfinite(cg) else
                   f"[study] {name} at {target:.0e} error: DG {dg:.3g} s, CG {cg:.3g} s (inf: not reached)",
+                  flush=True)
+        for name, key, target in (("bars, contact stress", "stress_rel_error", 1e-4),
+                                  ("bars, rebound velocity", "velocity_rel_error", 1e-2),
+                                  ("bars, rebound velocity", "velocity_rel_error", 5e-3)):
+            rk = wall_at([r for r in bars if r.get("scheme") == "rk4"], target, key)
+            ad = wall_at([r for r in bars if r.get("scheme") == "ader"], target, key)
+            print(f"[study] {name} at {target:.0e} error: DG rk4 {rk:.3g} s, DG ader {ad:.3g} s, "
+                  f"speed-up of ader {rk / ad:.3g}" if np.isfinite(rk) and np.isfinite(ad) else
+                  f"[study] {name} at {target:.0e} error: DG rk4 {rk:.3g} s, DG ader {ad:.3g} s (inf: not reached)",
                   flush=True)
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
