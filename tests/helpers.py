@@ -105,6 +105,18 @@ def norm(a, comm):
     return np.sqrt(comm.allreduce(float(a @ a), op=MPI.SUM))
 
 
+def step_problem(problem, steps, check=True):
+    """``steps`` steps of a :class:`~hydrofrac.problem.Problem` as the run driver takes them:
+    the step, the energy budget, the blow-up check (``check``) and the problem's own updates."""
+    solver = problem.solver
+    for _ in range(steps):
+        solver.step()
+        solver.update_energy()
+        if check:
+            solver.check_stability()
+        problem.after_step()
+
+
 def check_two_bars(acc):
     assert acc["contact_stress_rel_error"] < 0.01
     assert abs(acc["contact_stress"] / -ROCK.Zd - 1) < 0.01  # against the exact -Z_d v0, v0 = 1
