@@ -111,8 +111,9 @@ def add_time_scheme_arguments(parser, cracks=True):
     """``--scheme`` and ``--cfl``: the explicit scheme and its CFL constant (the measured
     trade-off on the crack runs: docs/benchmarks.md, "The scheme of a crack run" and "ADER with
     crack interfaces")."""
-    ader = ("ader: one predictor and one corrector per step, the cracks' flux at two points in the step, "
-            "docs/benchmarks.md" if cracks else "ader: the one-step scheme for the bulk, docs/benchmarks.md")
+    ader = ("ader: one predictor and one corrector per step, the cracks' flux at the stages of a Runge-Kutta "
+            "scheme of its order, docs/benchmarks.md" if cracks else
+            "ader: the one-step scheme for the bulk, docs/benchmarks.md")
     parser.add_argument("--scheme", choices=SCHEMES, default="rk4",
                         help=f"time scheme (default rk4; lsrk54: 5-stage steps up to 1.64x longer, 10/7 in growth "
                              f"runs, whose steps fit the check interval; {ader})")

@@ -110,8 +110,9 @@ LOW_STORAGE = {
 #: 0.41, 0.25, 0.18, 0.12, but a local derivative costs about half a full application.  The
 #: constants are 0.90 of the "right" limit (rk4's margin at p = 4); 1.5 C blows up and is
 #: stopped (tests/test_bulk.py::test_cfl_*).  Crack interfaces (nonlinear, with their own
-#: state) take their flux at two points in the step from the cells' predictor, as SeisSol's
-#: dynamic rupture does (:meth:`hydrofrac.interface.Interface.ader_step`).
+#: state) take their flux at the stages of a Runge-Kutta scheme of ADER's order, from the
+#: cells' predictor, as SeisSol's dynamic rupture takes its friction law at time points of the
+#: step (:meth:`hydrofrac.interface.Interface.ader_step`).
 ADER = "ader"
 ADER_CFL = {1: 0.73, 2: 0.69, 3: 0.64, 4: 0.56}
 
@@ -812,7 +813,10 @@ class Solver:
         cell-local derivatives, one ghost update of I, the facet fluxes of I with the boundary
         data integrated over the step, and x += M^{-1}(K I + those data).  The corrector's
         pass also computes the next step's I; it is reused while x and dt are unchanged
-        (x's PETSc state counter: any write through ``x.array`` or a local form invalidates it)."""
+        (x's PETSc state counter: any write through ``x.array`` or a local form invalidates it;
+        :meth:`read_local` reads keep it).  Crack interfaces first add their flux integrated over
+        the step to the corrector's residual (:meth:`~hydrofrac.interface.Interface.ader_step`),
+        and take their new state after it."""
         t0 = time.perf_counter()
         mf, dt, x = self.matfree, self.dt, self.x
         I, _ = self._work
