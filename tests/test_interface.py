@@ -22,7 +22,6 @@ from hydrofrac.interface import ContactParams, Crack, DamageParams, Interface, c
 from hydrofrac.solver import Solver
 
 from helpers import (CRACK, assert_dynamics_hold_penetration, LEFT, RIGHT, SIDES, check_shear_fracture, check_two_bars, kinked_crack_mesh,
-                     step_problem,
                      load_scenario, norm, rhs_parts, strip)
 
 # --------------------------------------------------------------------------------------
@@ -79,36 +78,6 @@ def test_two_bars_low_storage_schemes(scheme, nx):
         rec(problem)
     check_two_bars(tb.accuracy(solver, problem.interface, rec, 1.0, 1.0))
     assert problem.interface.contact_report()["clip_activations"] == 0
-
-
-def test_ader_with_cracks_watches_the_balance():
-    """Under ADER the blow-up check watches the energy beyond the inflow, since on rough bulk
-    data ADER's dissipation is not the one the budget samples.  With crack interfaces it
-    watches the balance too: in one full-size re-fracture (with stages since dropped) an
-    instability at a closing contact showed only there, as 18 % of the energy scale of sampled
-    dissipation within 150 steps, the energy staying smooth.  Such growth must stop the run;
-    the same growth in a bulk-only ADER run must not."""
-    from hydrofrac.energy import BlowUpError
-    problem = load_scenario("two_bars").setup(degree=1, nx=20, scheme="ader")
-    solver = problem.solver
-    solver.update_energy()
-    step_problem(problem, 5)
-    e = solver.energy
-    scale = e.initial + e.inflow_total
-    with pytest.raises(BlowUpError, match=r"unstable at step \d+"):
-        for _ in range(10):  # dissipation sampled from the states, 1 % of the scale a step
-            solver.step()
-            solver.update_energy()
-            e.dissipated_flux += 0.01 * scale
-            solver.check_stability()
-    bulk = Solver(problem.solver.mesh, 1, ROCK, scheme="ader")
-    bulk.set_initial_state(lambda x: np.vstack([np.where(x[0] < 0, 1.0, -1.0)] + [0 * x[0]] * 4))
-    scale = bulk.energy.initial
-    for _ in range(10):
-        bulk.step()
-        bulk.update_energy()
-        bulk.energy.dissipated_flux += 0.01 * scale
-        bulk.check_stability()
 
 
 # --------------------------------------------------------------------------------------
