@@ -826,6 +826,7 @@ class Solver:
         self.timers.add("rk update", time.perf_counter() - t0)
         states = []
         if self.extensions:  # crack interfaces: their flux integrals into R before the facets'
+            # (R is clear after the last corrector, so begin() below adds to their share)
             self.update_ghosts(x)
 
             def taylor(X, Q, cells, tau):
