@@ -550,7 +550,7 @@ class Interface:
         facets' flux to the cell residual ``R`` of the owned cells, and to the dof-vector residual
         for ghost cells (:meth:`fold_received` completes it), and return the state at t + dt.
         The stages are :data:`ADER_STAGES`' for the solver's degree: stage k reads the cells'
-        Taylor predictor at t + c_k dt (``taylor(X, Q, cells, tau)``,
+        Taylor predictor at t + c_k dt (``taylor(X, Qs, cells, taus)`` for all the stage times at once,
         :meth:`hydrofrac.matfree.MatrixFreeOperator.taylor_values`; ``X`` itself, the local
         values with ghosts, at c_k = 0) with the state z_n + dt sum_j A_kj r_j, and its
         quadrature weights carry b_k dt.  The new state z_n + dt sum_k b_k r_k is made
@@ -564,16 +564,17 @@ class Interface:
                 Pk = P.copy()
                 Pk[:, kernels.WEIGHTS:kernels.WEIGHTS + self.nq] *= dt * bk
                 weighted.append(self._facets._replace(P=Pk))
-            Q = self._ader[3] if self._ader is not None else np.zeros_like(X)
-            self._ader = (dt, np.unique(self.cells.reshape(-1)).astype(np.int64), weighted, Q)
-        _, cells, weighted, Q = self._ader
+            times = sorted({ck for ck in c if ck})
+            Q = self._ader[4] if self._ader is not None else {}
+            Q = {ck: Q[ck] if ck in Q and Q[ck].shape == X.shape else np.zeros_like(X) for ck in times}
+            self._ader = (dt, np.unique(self.cells.reshape(-1)).astype(np.int64), weighted, times, Q)
+        _, cells, weighted, times, Q = self._ader
+        taylor(X, [Q[ck] for ck in times], cells, [ck * dt for ck in times])  # (each stage time's traces)
         z0 = self.state
         rates = []
         for k, (ck, Ak, Fk) in enumerate(zip(c, A, weighted)):
             self.stage_state = self.advance(z0, _sum(dt, Ak, rates)) if k else z0
-            if ck and ck != c[k - 1]:
-                taylor(X, Q, cells, ck * dt)
-            rates.append(self._stage(Q if ck else X, t + ck * dt, R, R.shape[0], Fk))
+            rates.append(self._stage(Q[ck] if ck else X, t + ck * dt, R, R.shape[0], Fk))
         z = self.advance(z0, _sum(dt, b, rates))
         self.solver.timers.add("interface kernel", time.perf_counter() - t0)
         return z

@@ -832,13 +832,13 @@ class MatrixFreeOperator:
                             self.Minv_ref, self.mat, self.Btab, *self._derivatives(), float(dt), int(order))
         self._R_clear = True
 
-    def taylor_values(self, x, Q, cells, tau, order):
-        """Q = the cell-local Taylor predictor from ``x`` at the time ``tau`` into the step,
-        sum_{m=0..order} tau^m/m! D^m x, on ``cells`` (owned or ghost; ``x``, ``Q``: local
-        arrays with ghosts, the other blocks of Q left as they are): the traces ADER's crack
+    def taylor_values(self, x, Qs, cells, taus, order):
+        """Qs[i] = the cell-local Taylor predictor from ``x`` at the time ``taus[i]`` into the
+        step, sum_{m=0..order} tau^m/m! D^m x, on ``cells`` (owned or ghost; ``x`` and each Q:
+        local arrays with ghosts, the other blocks of Q left as they are): the traces ADER's crack
         interfaces see inside a step (:meth:`hydrofrac.interface.Interface.ader_step`).  D is
-        :meth:`local_derivative`'s operator, here the numba volume kernel on those cells'
-        own data (gathered once per list of cells)."""
+        :meth:`local_derivative`'s operator, here the numba volume kernel on those cells' own
+        data (gathered once per list of cells); each D^m x once for all the times."""
         key = id(cells)
         if self._taylor is None or self._taylor[0] != key:
             vol = _kernels(self.dofs.shape[1], self.fnodes.shape[1], False)[0]  # (any dof numbering)
@@ -849,13 +849,15 @@ class MatrixFreeOperator:
         _, _, vol, d, Jinv, invdet, mat, Rzero, work = self._taylor
         out = work[0]
         vol(out, Rzero, x, d, d.shape[0], self.S0, self.S1, Jinv, invdet, self.Minv_ref, mat, self.Btab)
-        _add_blocks(Q, x, out, d, float(tau))
-        coef = float(tau)
+        coefs = [float(tau) for tau in taus]
+        for Q, coef in zip(Qs, coefs):
+            _add_blocks(Q, x, out, d, coef)
         for m in range(2, order + 1):
             src, out = out, work[m % 2]
             vol(out, Rzero, src, d, d.shape[0], self.S0, self.S1, Jinv, invdet, self.Minv_ref, mat, self.Btab)
-            coef *= tau / m
-            _add_blocks(Q, Q, out, d, coef)
+            for i, (Q, tau) in enumerate(zip(Qs, taus)):
+                coefs[i] *= tau / m
+                _add_blocks(Q, Q, out, d, coefs[i])
 
     def _derivatives(self):
         """The nodal derivative matrices D_r = Minv_ref S_r (computed when first asked for)."""

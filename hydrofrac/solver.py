@@ -831,8 +831,8 @@ class Solver:
             # (R is clear after the last corrector, so begin() below adds to their share)
             self.update_ghosts(x)
 
-            def taylor(X, Q, cells, tau):
-                mf.taylor_values(X, Q, cells, tau, self.degree)
+            def taylor(X, Qs, cells, taus):
+                mf.taylor_values(X, Qs, cells, taus, self.degree)
 
             with self.read_local(x) as X:
                 states = [ext.ader_step(X, self.t, dt, mf.R, taylor) for ext in self.extensions]
