@@ -716,7 +716,7 @@ class MatrixFreeOperator:
         # the volume, interior facet, ADER and cell energy kernels in C, in blocks of cells (hydrofrac/native.py)
         # for a cell-contiguous space; otherwise, or with HYDROFRAC_KERNELS=numba, the numba ones
         self.kernels = native.backend() if self.contiguous else "numba"
-        self._cvolume = self._cfacets = self._cader = self._cenergy = None  # (ADER's when first used)
+        self._cvolume = self._cfacets = self._cader = self._cenergy = self._cdiss = None  # (ADER's when first used)
         if self.kernels == "c":
             nk = self.fnodes.shape[1]
             self._cvolume = native.VolumeKernel(nb, nk, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
@@ -730,6 +730,9 @@ class MatrixFreeOperator:
             ctab = np.zeros((self.Btab.shape[0], 11))
             ctab[self.mat[:self.nowned]] = _pack_blocks(self.Bmat[:self.nowned])
             self._cenergy = native.EnergyKernel(nb, nk, self.nowned, self.Mref, self.absdet, self.mat, ctab)
+            self._cdiss = native.DissipationKernel(nb, nk, self.dofs.shape[0], self.fcells, self.fcodes, self.normal,
+                                                   self.length, self.fnodes, self.Mf, self.fown, self.Zd[cp],
+                                                   self.Zd[cm], self.Zs[cp], self.Zs[cm])
 
     def set_boundary(self, facets, bc_of, bcs=()):
         """The exterior facets of the owned cells, with the boundary condition of each
@@ -882,6 +885,8 @@ class MatrixFreeOperator:
 
     def dissipation_rate(self, xloc):
         """This rank's share of the interior upwind dissipation rate [W/m] (ghosts current)."""
+        if self._cdiss is not None:
+            return self._cdiss(xloc)
         return self._dissipation(xloc, self.dofs, self.fcells, self.fcodes, self.fown, self.normal, self.length,
                                  self.fnodes, self.Mf, self.Zd, self.Zs)
 

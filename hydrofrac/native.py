@@ -93,7 +93,7 @@ def _library(defines: tuple) -> ctypes.CDLL:
 
 def describe() -> str:
     """The summary's words for the C kernels."""
-    return (f"C volume, facet, ADER and energy kernels ({_compiler()} {' '.join(CFLAGS[:2])}, {LANES} cells per block)"
+    return (f"C volume, facet, ADER, energy and dissipation kernels ({_compiler()} {' '.join(CFLAGS[:2])}, {LANES} cells per block)"
             " + numba")
 
 
@@ -197,6 +197,47 @@ class FacetKernel:
             raise NativeError(f"the C facet kernel needs the values of all {self._size // 5} nodes, ghosts "
                               f"included; got {X.size // 5}")
         self._fn(R.ctypes.data, X.ctypes.data, self._nf, *self._const, self._nowned)
+
+
+class DissipationKernel:
+    """The C ``facet_dissipation``: ``kernel(X)`` is the upwind flux's dissipation rate on the
+    owned listed interior facets (``own``), as the numba kernel ``facet_dissipation`` computes it
+    for a cell-contiguous space; per impedance pair (``pair``, as :class:`FacetKernel`'s) the
+    coefficients Z+ Z- / (Z+ + Z-) and 1 / (Z+ + Z-) of the normal and tangential jumps."""
+
+    def __init__(self, nb: int, nk: int, ncells: int, fcells, fcodes, normal, length, fnodes, Mf, own,
+                 Zpn, Zmn, Zpt, Zmt):
+        fn = _function(nb, nk, "facet_dissipation", [_P, _N] + [_P] * 9)
+        fn.restype = ctypes.c_double
+        self._fn = fn
+        nf = fcells.shape[0]
+        own = np.ascontiguousarray(own, dtype=np.uint8)
+        quad = np.stack([Zpn, Zmn, Zpt, Zmt], axis=1)
+        if nf and (quad == quad[0]).all():  # one material: one pair
+            table, pair = quad[:1], np.zeros(nf, dtype=np.int32)
+        elif nf:
+            table, pair = np.unique(quad, axis=0, return_inverse=True)
+        else:
+            table, pair = np.ones((1, 4)), np.zeros(0, dtype=np.int32)
+        zpn, zmn, zpt, zmt = table.T
+        dcoef = np.ascontiguousarray(np.stack([zpn * zmn / (zpn + zmn), zpt * zmt / (zpt + zmt),
+                                               1.0 / (zpn + zmn), 1.0 / (zpt + zmt)], axis=1))
+        pair = np.ascontiguousarray(pair.reshape(-1), dtype=np.int32)
+        _check("dissipation", [(fcells, np.int64, (nf, 2)), (fcodes, np.int64, (nf, 2)),
+                               (normal, np.float64, (nf, 2)), (length, np.float64, (nf,)),
+                               (fnodes, np.int64, (9, nk)), (Mf, np.float64, (nk, nk)), (own, np.uint8, (nf,))])
+        if nf and (fcells.max() >= ncells or fcells.min() < 0 or fcodes.min() < 0 or fcodes.max() > 8
+                   or fnodes.max() >= nb):
+            raise NativeError("the C dissipation kernel's facet data point outside its cells")
+        self._arrays = (fcells, fcodes, normal, length, fnodes, Mf, dcoef, pair, own)
+        self._nf, self._size = nf, int(ncells) * nb * 5
+        self._const = tuple(a.ctypes.data for a in self._arrays)
+
+    def __call__(self, X):
+        if X.dtype != np.float64 or not X.flags.c_contiguous or X.size < self._size:
+            raise NativeError(f"the C dissipation kernel needs the values of all {self._size // 5} nodes, ghosts "
+                              f"included, contiguous float64; got {X.dtype} {X.shape}")
+        return float(self._fn(X.ctypes.data, self._nf, *self._const))
 
 
 class EnergyKernel:

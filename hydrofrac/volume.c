@@ -209,6 +209,56 @@ void facet_fluxes(double *restrict R, const double *restrict X, long nfacets, co
 }
 #endif
 
+/* The rate of energy the upwind flux dissipates on the owned listed facets, in blocks of W facets:
+ * what the numba kernel facet_dissipation in hydrofrac/matfree.py computes for a cell-contiguous
+ * space, int sum_i a_i [[v_i]]^2 + c_i [[s_i]]^2 (i = n, t; a_i = Z_i+ Z_i- / (Z_i+ + Z_i-),
+ * c_i = 1 / (Z_i+ + Z_i-)) from the jumps at the facet nodes and the facet mass matrix.  dcoef
+ * (pairs, 4) holds a_n, a_t, c_n, c_t per impedance pair; own[f] = 0 leaves a facet out (a
+ * ghost's, counted by its owner).  Lanes are summed at the end. */
+#ifdef NK
+double facet_dissipation(const double *restrict X, long nfacets, const long *restrict fcells,
+                         const long *restrict fcodes, const double *restrict normal,
+                         const double *restrict length, const long *restrict fnodes, const double *restrict Mf,
+                         const double *restrict dcoef, const int *restrict pair, const unsigned char *restrict own)
+{
+    double total[W] = {0};
+    for (long f0 = 0; f0 < nfacets; f0 += W) {
+        const long w = nfacets - f0 < W ? nfacets - f0 : W;
+        double J[NK][4][W], wt[W], cf[4][W];
+        for (long l = 0; l < W; l++) {
+            const long f = f0 + (l < w ? l : 0);
+            wt[l] = (l < w && own[f]) ? length[f] : 0.0;
+            for (int q = 0; q < 4; q++) cf[q][l] = dcoef[4 * pair[f] + q];
+            const long cp = fcells[2 * f], cm = fcells[2 * f + 1];
+            const double nx = normal[2 * f], ny = normal[2 * f + 1];
+            for (int k = 0; k < NK; k++) {
+                const double *xp = X + 5 * (NB * cp + fnodes[NK * fcodes[2 * f] + k]);
+                const double *xm = X + 5 * (NB * cm + fnodes[NK * fcodes[2 * f + 1] + k]);
+                const double j0 = xm[0] - xp[0], j1 = xm[1] - xp[1], j2 = xm[2] - xp[2], j3 = xm[3] - xp[3],
+                             j4 = xm[4] - xp[4];
+                const double tx = j2 * nx + j4 * ny, ty = j4 * nx + j3 * ny;
+                J[k][0][l] = j0 * nx + j1 * ny;
+                J[k][1][l] = -j0 * ny + j1 * nx;
+                J[k][2][l] = tx * nx + ty * ny;
+                J[k][3][l] = -tx * ny + ty * nx;
+            }
+        }
+        double acc[W] = {0};
+        for (int k = 0; k < NK; k++)
+            for (int m = 0; m < NK; m++) {
+                const double mf = Mf[k * NK + m];
+                for (long l = 0; l < W; l++)
+                    acc[l] += mf * (cf[0][l] * J[k][0][l] * J[m][0][l] + cf[1][l] * J[k][1][l] * J[m][1][l]
+                                    + cf[2][l] * J[k][2][l] * J[m][2][l] + cf[3][l] * J[k][3][l] * J[m][3][l]);
+            }
+        for (long l = 0; l < W; l++) total[l] += wt[l] * acc[l];
+    }
+    double t = 0.0;
+    for (long l = 0; l < W; l++) t += total[l];
+    return t;
+}
+#endif
+
 /* ADER's corrector and next predictor, in blocks of W cells: what the numba kernel ader_corrector
  * in hydrofrac/matfree.py computes for a cell-contiguous space.  Per cell: x += M_c^{-1} (R[c] +
  * volume terms of I) (R[c] cleared), then I = sum_{k=0..order} dt^(k+1)/(k+1)! D^k x, D the
