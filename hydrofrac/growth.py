@@ -1032,8 +1032,26 @@ class GrowthDriver(RemeshDriver):
                 "grown_length": sum(float(np.linalg.norm(np.diff(np.array(p), axis=0), axis=1).sum())
                                     for p in self.paths),
                 "tip_speed_max": max(speeds) if speeds else 0.0,
+                **self.time_step_report(),
                 **self.remesh_kinds(),
                 **({"adaptive_remeshes": self.adapt_count, **self.adapt.report()} if self.adapt is not None else {})}
+
+    def time_step_report(self):
+        """What the meshes made of the time step (collective): the first and the last mesh's dt,
+        the steps taken beyond those the first mesh's dt needs for the same time (a share: a cell
+        smaller than the first mesh's sets a shorter step on every mesh after it), and the cell
+        that sets the last mesh's step (2 x inradius [m] and where)."""
+        solver = getattr(self.problem, "solver", None)  # (the tests' stand-in problems have none)
+        m = self.meshes
+        if solver is None or not m or float(solver.t) <= m[0][0]:
+            return {}
+        t_end = float(solver.t)
+        ends = [b[0] for b in m[1:]] + [t_end]
+        steps = sum((e - t) / dt for (t, _, dt), e in zip(m, ends))
+        h, at = solver.smallest_cell()
+        return {"dt_first_mesh": m[0][2], "dt_last_mesh": m[-1][2],
+                "steps_beyond_first_dt": steps * m[0][2] / (t_end - m[0][0]) - 1.0,
+                "smallest_cell_2r": h, "smallest_cell_at": [round(v, 4) for v in at]}
 
     def remesh_kinds(self):
         """With local remeshing: the remeshes made by a patch, those that fell back to the whole

@@ -647,6 +647,16 @@ class Solver:
         self.energy = EnergyBudget(kinetic=kin, strain=strain, initial=kin + strain)
         self.account.last_rates = None
 
+    def smallest_cell(self):
+        """(2 x inradius [m], centroid (x, y)) of the cell that sets the time step, the smallest
+        h/c_d over the owned cells of all ranks (collective; the summary's diagnostic)."""
+        nloc = compat.num_cells_local(self.mesh)
+        h_over_c = self.geometry.inradius[:nloc] * 2.0 / self.cd_cell[:nloc]
+        i = int(np.argmin(h_over_c)) if nloc else -1
+        val, rank = self.comm.allreduce((float(h_over_c[i]) if nloc else np.inf, self.comm.rank), op=MPI.MINLOC)
+        mine = (2.0 * float(self.geometry.inradius[i]), self.geometry.centroid[i, :2].tolist()) if nloc else None
+        return self.comm.bcast(mine, root=rank)
+
     def local_array(self, vec=None):
         """(owned nodes, 5) view of a state vector."""
         vec = self.x if vec is None else vec

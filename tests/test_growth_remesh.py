@@ -154,6 +154,16 @@ def test_crack_growth_scenario_on_one_and_two_ranks(tmp_path, run_command, mpiru
     assert "halo exchange" not in s[1]["time_split_s"] and s[2]["time_split_s"]["halo exchange"] > 0
     assert s[1]["energy"]["transfer_loss"] > 0
     assert abs(s[1]["energy"]["balance_error_relative"]) < 1e-3
+    # what the meshes made of the time step: the steps beyond those of the first mesh's dt (to
+    # within the last, shortened step), and the cell that sets the last mesh's dt
+    from hydrofrac import ROCK
+    T = s[1]["simulated_time"] - meshes[0]["t"]
+    assert acc["dt_first_mesh"] == meshes[0]["dt"] and acc["dt_last_mesh"] == s[1]["dt"]
+    assert acc["steps_beyond_first_dt"] == pytest.approx(s[1]["steps"] * meshes[0]["dt"] / T - 1,
+                                                         abs=meshes[0]["dt"] / T)
+    assert acc["smallest_cell_2r"] == pytest.approx(
+        s[1]["dt"] * (2 * s[1]["degree"] + 1) / s[1]["cfl"] * ROCK.cd, rel=1e-9)
+    assert s[2]["accuracy"]["smallest_cell_at"] == acc["smallest_cell_at"]
     for key in ("remeshes", "extensions", "tip0_first_kink_deg", "tip1_first_kink_deg", "tip0_grown_m", "tip1_grown_m"):
         assert s[2]["accuracy"][key] == pytest.approx(acc[key], rel=1e-9, abs=1e-12), key
     # the grown paths are kept in growth.json, and agree with the summary
