@@ -202,7 +202,7 @@ class FacetKernel:
 class DissipationKernel:
     """The C ``facet_dissipation``: ``kernel(X)`` is the upwind flux's dissipation rate on the
     owned listed interior facets (``own``), as the numba kernel ``facet_dissipation`` computes it
-    for a cell-contiguous space; per impedance pair (``pair``, as :class:`FacetKernel`'s) the
+    for a cell-contiguous space; per impedance pair (:func:`impedance_pairs`) the
     coefficients Z+ Z- / (Z+ + Z-) and 1 / (Z+ + Z-) of the normal and tangential jumps."""
 
     def __init__(self, nb: int, nk: int, ncells: int, fcells, fcodes, normal, length, fnodes, Mf, own,
@@ -212,17 +212,10 @@ class DissipationKernel:
         self._fn = fn
         nf = fcells.shape[0]
         own = np.ascontiguousarray(own, dtype=np.uint8)
-        quad = np.stack([Zpn, Zmn, Zpt, Zmt], axis=1)
-        if nf and (quad == quad[0]).all():  # one material: one pair
-            table, pair = quad[:1], np.zeros(nf, dtype=np.int32)
-        elif nf:
-            table, pair = np.unique(quad, axis=0, return_inverse=True)
-        else:
-            table, pair = np.ones((1, 4)), np.zeros(0, dtype=np.int32)
+        table, pair = impedance_pairs(Zpn, Zmn, Zpt, Zmt)
         zpn, zmn, zpt, zmt = table.T
         dcoef = np.ascontiguousarray(np.stack([zpn * zmn / (zpn + zmn), zpt * zmt / (zpt + zmt),
                                                1.0 / (zpn + zmn), 1.0 / (zpt + zmt)], axis=1))
-        pair = np.ascontiguousarray(pair.reshape(-1), dtype=np.int32)
         _check("dissipation", [(fcells, np.int64, (nf, 2)), (fcodes, np.int64, (nf, 2)),
                                (normal, np.float64, (nf, 2)), (length, np.float64, (nf,)),
                                (fnodes, np.int64, (9, nk)), (Mf, np.float64, (nk, nk)), (own, np.uint8, (nf,))])
@@ -267,18 +260,24 @@ class EnergyKernel:
         return float(self._out[0]), float(self._out[1])
 
 
+def impedance_pairs(Zpn, Zmn, Zpt, Zmt):
+    """(table (pairs, 4), pair (facets,) int32): the distinct (Z+n, Z-n, Z+t, Z-t) of the facets
+    and each facet's row in that table; no facet: one row of ones."""
+    quad = np.stack([Zpn, Zmn, Zpt, Zmt], axis=1)
+    if quad.shape[0] == 0:
+        return np.ones((1, 4)), np.zeros(0, dtype=np.int32)
+    if (quad == quad[0]).all():  # one material: one pair, without np.unique's sort (6 ms at 8k facets)
+        return quad[:1], np.zeros(quad.shape[0], dtype=np.int32)
+    table, pair = np.unique(quad, axis=0, return_inverse=True)
+    return table, np.ascontiguousarray(pair.reshape(-1), dtype=np.int32)
+
+
 def bonded_coefficients(Zpn, Zmn, Zpt, Zmt, bonded_jump_pt):
     """(coef (pairs, 16), pair (facets,) int32): the coefficients of the jumps [v] and [s] in
     ``bonded_jump_pt``'s four corrections, for the normal (impedances Zpn, Zmn) and the
-    tangential component (Zpt, Zmt) of each distinct impedance pair, from the formula itself
-    on unit jumps (it is linear in them)."""
-    quad = np.stack([Zpn, Zmn, Zpt, Zmt], axis=1)
-    if quad.shape[0] == 0:
-        return np.zeros((1, 16)), np.zeros(0, dtype=np.int32)
-    if (quad == quad[0]).all():  # one material: one pair, without np.unique's sort (6 ms at 8k facets)
-        table, pair = quad[:1], np.zeros(quad.shape[0], dtype=np.int32)
-    else:
-        table, pair = np.unique(quad, axis=0, return_inverse=True)
+    tangential component (Zpt, Zmt) of each distinct impedance pair (:func:`impedance_pairs`),
+    from the formula itself on unit jumps (it is linear in them)."""
+    table, pair = impedance_pairs(Zpn, Zmn, Zpt, Zmt)
     coef = np.empty((table.shape[0], 16))
     for q, (zpn, zmn, zpt, zmt) in enumerate(table):
         coef[q] = (bonded_jump_pt(1.0, 0.0, zpn, zmn) + bonded_jump_pt(0.0, 1.0, zpn, zmn)

@@ -653,7 +653,7 @@ class Solver:
         nloc = compat.num_cells_local(self.mesh)
         h_over_c = self.geometry.inradius[:nloc] * 2.0 / self.cd_cell[:nloc]
         i = int(np.argmin(h_over_c)) if nloc else -1
-        val, rank = self.comm.allreduce((float(h_over_c[i]) if nloc else np.inf, self.comm.rank), op=MPI.MINLOC)
+        _, rank = self.comm.allreduce((float(h_over_c[i]) if nloc else np.inf, self.comm.rank), op=MPI.MINLOC)
         mine = (2.0 * float(self.geometry.inradius[i]), self.geometry.centroid[i, :2].tolist()) if nloc else None
         return self.comm.bcast(mine, root=rank)
 
