@@ -577,16 +577,15 @@ def _patch(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], added, radiu
     inner = near[ta] & near[tb]
     _, pcomp = connected_components(coo_matrix((np.ones(inner.sum()), (pos[ta[inner]], pos[tb[inner]])),
                                                shape=(sel.size, sel.size)), directed=False)
-    piece_of_node = {}
-    for k, t in zip(pcomp, ptris):
-        for v in t:
-            piece_of_node[int(v)] = int(k)
-    interior_keys = set(uk[counts == 2].tolist())
+    # (a node of a loop is in one piece only: pieces that touched at a vertex failed _loops)
+    piece_of_node = np.full(old.nodes.shape[0], -1, dtype=np.int64)
+    piece_of_node[ptris] = pcomp[:, None]
+    interior_keys = uk[counts == 2]
     crack_tags = set(old.lines) if crack_tags is None else set(crack_tags)
     inner_cracks = []  # (tag, (2,) node indices) old crack edges inside the patch
     kept_lines = {}
     for tag, edges in old.lines.items():
-        inside = np.isin(_edge_key(edges), list(interior_keys)) if tag in crack_tags else np.zeros(len(edges), bool)
+        inside = np.isin(_edge_key(edges), interior_keys) if tag in crack_tags else np.zeros(len(edges), bool)
         kept_lines[tag] = edges[~inside]
         inner_cracks += [(tag, ed) for ed in edges[inside]]
 
@@ -611,7 +610,7 @@ def _patch(gmsh, old: MeshArrays, polylines: Dict[int, np.ndarray], added, radiu
     # OpenCASCADE's fragment does not cut with the crack lines (docs/benchmarks.md, "A patch
     # with a hole"); the outer loops stay as walked, so a patch without a hole is unchanged
     signed = [_area(old.nodes[loop]) for loop in loops]
-    piece = [piece_of_node[loop[0]] for loop in loops]
+    piece = [int(piece_of_node[loop[0]]) for loop in loops]
     outer_sign = {}
     for k in sorted(range(len(loops)), key=lambda k: abs(signed[k])):
         outer_sign[piece[k]] = signed[k] > 0  # (the largest loop of each piece comes last)
