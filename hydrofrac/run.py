@@ -31,6 +31,10 @@ from .problem import Problem
 from .solver import BlowUpError, Solver
 from .summary import build_summary, unit_counts, write_summary
 
+#: steps between two readings of rank 0's clock for a checkpoint by wall time (each reading is a
+#: broadcast that every rank waits for)
+CLOCK_EVERY = 10
+
 
 def _real(v) -> bool:
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
@@ -43,7 +47,8 @@ class RunOptions:
     t_end : simulated time [s]; the last step lands on it
     out : output folder
     frames : number of output frames (plus the initial one), evenly spaced in time
-    checkpoint_wall : seconds of wall time between checkpoints (rank 0's clock, broadcast)
+    checkpoint_wall : seconds of wall time between checkpoints (rank 0's clock, read every
+        :data:`CLOCK_EVERY` steps and broadcast)
     checkpoint_steps : steps between checkpoints (None: by wall time only)
     restart : continue from ``out/checkpoint`` if present
     progress_wall : seconds of wall time between progress lines (rank 0)
@@ -330,11 +335,12 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
                 series.write(solver.t, problem.parts())
             solver.timers.add("output", time.perf_counter() - t0)
             now = time.perf_counter()
-            due = None
-            if comm.rank == 0:
-                due = bool((options.checkpoint_steps and solver.step_count % options.checkpoint_steps == 0)
-                           or now - last_ckpt > options.checkpoint_wall)
-            if not at_end and comm.bcast(due, root=0):  # one clock decides for all ranks
+            # a checkpoint by steps is known on every rank; by wall time one clock decides for
+            # all ranks, read every CLOCK_EVERY steps (a broadcast every step waited for rank 0)
+            due = bool(options.checkpoint_steps and solver.step_count % options.checkpoint_steps == 0)
+            if not due and not at_end and solver.step_count % CLOCK_EVERY == 0:
+                due = comm.bcast(bool(now - last_ckpt > options.checkpoint_wall) if comm.rank == 0 else None, root=0)
+            if due and not at_end:
                 save()
                 last_ckpt = time.perf_counter()
             if comm.rank == 0:

@@ -344,6 +344,31 @@ def test_run_blowup_keeps_last_good_state(tmp_path):
     assert f'timestep="{solver.t:.9e}"' in pvd
 
 
+def test_a_checkpoint_by_wall_time_is_taken_at_a_clock_reading(tmp_path, monkeypatch):
+    """With checkpoints by wall time only and a wall interval always passed, the loop saves at
+    every reading of rank 0's clock: every CLOCK_EVERY steps, not at every step (each reading is
+    a broadcast every rank waits for), and the last save before the end is at the last reading."""
+    from hydrofrac import run as run_module
+    comm = MPI.COMM_WORLD
+    out = Path(comm.bcast(str(tmp_path), root=0)) / "clock"
+    mesh, _ = exact.unit_square(6)
+    solver = Solver(mesh, 1, ROCK)
+    solver.set_initial_state(exact.rough_state(ROCK))
+    steps = 3 * run_module.CLOCK_EVERY + 4
+    saved = []
+    original = run_module.Checkpoint.save
+
+    def counted(self, problem, *args, **kwargs):
+        saved.append(problem.solver.step_count)
+        return original(self, problem, *args, **kwargs)
+    monkeypatch.setattr(run_module.Checkpoint, "save", counted)
+    run(solver, RunOptions(t_end=steps * solver.dt, out=str(out), frames=1, progress_wall=1e9, checkpoint_wall=1e-9))
+    readings = [k for k in range(1, steps) if k % run_module.CLOCK_EVERY == 0]
+    assert saved[:len(readings)] == readings
+    ckpt = np.load(out / "checkpoint" / f"state_r{comm.rank}.npz")
+    assert int(ckpt["step"]) in (readings[-1], steps)
+
+
 def test_blowup_falls_back_to_a_state_close_to_the_stable_run_and_restarts(tmp_path):
     """At 1.5x the stable CFL the run stops as soon as the energy balance has grown in each of
     4 steps, by 2 % in all (before: when the energy passed 1.5x the inflow, 22-45 % above a
