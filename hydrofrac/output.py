@@ -25,6 +25,7 @@ class History:
         self._file = None
         self._writer = None
         self._mode = "w"
+        self.error = None  # rank 0's first failed row of those written with collective=False
         if restart_step is not None and comm.rank == 0 and self.path.exists():
             with open(self.path, newline="") as f:
                 rows = list(csv.reader(f))
@@ -33,24 +34,41 @@ class History:
                 csv.writer(f).writerows(keep)
             self._mode = "a" if keep else "w"
 
-    def write(self, row: Dict):
-        """Append ``row`` (collective: an :class:`~hydrofrac.io.OutputError` on every rank if
-        rank 0 cannot write it)."""
-        def write():
-            if self.comm.rank != 0:
-                return
-            if self._writer is None:
-                self._file = open(self.path, self._mode, newline="")
-                self._writer = csv.DictWriter(self._file, fieldnames=list(row))
-                if self._mode == "w":
-                    self._writer.writeheader()
-            self._writer.writerow(row)
-            self._file.flush()
+    def write(self, row: Dict, collective: bool = True):
+        """Append ``row``.  ``collective``: every rank learns at once whether rank 0 wrote it (an
+        :class:`~hydrofrac.io.OutputError` on every rank if not).  Otherwise (the time loop's
+        rows, which a collective per row would make every rank wait for rank 0 at every step):
+        rank 0 keeps its first error and writes no more rows, and :meth:`check` raises it."""
+        if collective:
+            errors = failures(self.comm, lambda: self._write(row))
+            if errors:
+                raise self.failure("; ".join(errors))
+        elif self.comm.rank == 0 and self.error is None:
+            try:
+                self._write(row)
+            except Exception as e:  # (raised on every rank by check)
+                self.error = f"rank 0: {type(e).__name__}: {e}"
 
-        errors = failures(self.comm, write)
-        if errors:
-            raise OutputError(f"could not write {self.path}: {'; '.join(errors)}. Free disk space or choose a "
-                              "writable --out")
+    def _write(self, row: Dict):
+        if self.comm.rank != 0:
+            return
+        if self._writer is None:
+            self._file = open(self.path, self._mode, newline="")
+            self._writer = csv.DictWriter(self._file, fieldnames=list(row))
+            if self._mode == "w":
+                self._writer.writeheader()
+        self._writer.writerow(row)
+        self._file.flush()
+
+    def check(self):
+        """Collective: an :class:`~hydrofrac.io.OutputError` on every rank if a row written with
+        ``collective=False`` failed on rank 0."""
+        error = self.comm.bcast(self.error, root=0)
+        if error is not None:
+            raise self.failure(error)
+
+    def failure(self, errors: str) -> OutputError:
+        return OutputError(f"could not write {self.path}: {errors}. Free disk space or choose a writable --out")
 
     def close(self):
         if self._file is not None:

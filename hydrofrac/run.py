@@ -31,8 +31,8 @@ from .problem import Problem
 from .solver import BlowUpError, Solver
 from .summary import build_summary, unit_counts, write_summary
 
-#: steps between two readings of rank 0's clock for a checkpoint by wall time (each reading is a
-#: broadcast that every rank waits for)
+#: steps between two readings of rank 0's clock for a checkpoint by wall time and of its history
+#: writer's state (each reading is a broadcast that every rank waits for)
 CLOCK_EVERY = 10
 
 
@@ -206,6 +206,7 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
                 geometry())
 
     def save(snapshot=None, state=None):
+        history.check()  # (a checkpoint never lies beyond the last history row written)
         prob, frame_list, done, mon, lp, geom = state_now() if state is None else state
         ckpt.save(prob, frame_list, done, params, mon, lp, geom, snapshot)
 
@@ -251,11 +252,11 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
         if probes is not None:
             probes.close()
 
-    def write_history():
+    def write_history(collective=True):
         row = _energy_row(problem)
         for m in monitors:
             row.update(m.history(problem))
-        history.write(row)
+        history.write(row, collective)
         if probes is not None:
             probes.write(problem)
 
@@ -330,16 +331,21 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
             at_end = solver.t >= t_end * (1 - 1e-12)
             t0 = time.perf_counter()
             if solver.step_count % options.history_every == 0 or at_end:
-                write_history()
+                write_history(collective=False)  # (rank 0's errors: read with its clock, below)
             if frames.due(solver.t, solver.dt):
                 series.write(solver.t, problem.parts())
             solver.timers.add("output", time.perf_counter() - t0)
             now = time.perf_counter()
             # a checkpoint by steps is known on every rank; by wall time one clock decides for
-            # all ranks, read every CLOCK_EVERY steps (a broadcast every step waited for rank 0)
+            # all ranks, read every CLOCK_EVERY steps (a broadcast every step waited for rank 0),
+            # together with whether rank 0 could write its history rows
             due = bool(options.checkpoint_steps and solver.step_count % options.checkpoint_steps == 0)
-            if not due and not at_end and solver.step_count % CLOCK_EVERY == 0:
-                due = comm.bcast(bool(now - last_ckpt > options.checkpoint_wall) if comm.rank == 0 else None, root=0)
+            if solver.step_count % CLOCK_EVERY == 0 or at_end:
+                clock, failed = comm.bcast((bool(now - last_ckpt > options.checkpoint_wall), history.error)
+                                           if comm.rank == 0 else None, root=0)
+                if failed is not None:
+                    raise history.failure(failed)
+                due = due or clock
             if due and not at_end:
                 save()
                 last_ckpt = time.perf_counter()

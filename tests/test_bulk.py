@@ -369,6 +369,31 @@ def test_a_checkpoint_by_wall_time_is_taken_at_a_clock_reading(tmp_path, monkeyp
     assert int(ckpt["step"]) in (readings[-1], steps)
 
 
+def test_the_time_loop_writes_its_history_rows_without_a_collective_each(tmp_path, monkeypatch):
+    """Rank 0 writes a history row every step; whether it could is read with its clock every
+    CLOCK_EVERY steps (one broadcast), not gathered from every rank at every row. A row rank 0
+    cannot write stops every rank at the next reading (tests/test_reliability.py, the disk full
+    on rank 0's fourth row)."""
+    from hydrofrac import output, run as run_module
+    comm = MPI.COMM_WORLD
+    out = Path(comm.bcast(str(tmp_path), root=0)) / "rows"
+    mesh, _ = exact.unit_square(6)
+    solver = Solver(mesh, 1, ROCK)
+    solver.set_initial_state(exact.rough_state(ROCK))
+    steps = 4 * run_module.CLOCK_EVERY
+    gathered = []
+    original = output.failures
+
+    def counted(comm_, action):
+        gathered.append(1)
+        return original(comm_, action)
+    monkeypatch.setattr(output, "failures", counted)
+    run(solver, RunOptions(t_end=steps * solver.dt, out=str(out), frames=1, progress_wall=1e9))
+    rows = (out / "history.csv").read_text().strip().splitlines() if comm.rank == 0 else []
+    assert comm.rank != 0 or len(rows) == steps + 2  # the header, the initial row and one a step
+    assert len(gathered) == 1  # the initial row's
+
+
 def test_blowup_falls_back_to_a_state_close_to_the_stable_run_and_restarts(tmp_path):
     """At 1.5x the stable CFL the run stops as soon as the energy balance has grown in each of
     4 steps, by 2 % in all (before: when the energy passed 1.5x the inflow, 22-45 % above a
