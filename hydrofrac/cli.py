@@ -33,7 +33,7 @@ def scenario_parser(description: str) -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, default=None, help="number of output frames, evenly spaced in time")
     p.add_argument("--restart", action="store_true", help="continue from the last checkpoint in --out")
     p.add_argument("--checkpoint-every", type=float, default=120.0,
-                   help="wall time between checkpoints [s] (default 120)")
+                   help="wall time between checkpoints [s] (default 120; the clock is read every 10 steps)")
     p.add_argument("--checkpoint-steps", type=int, default=None,
                    help="also checkpoint every N steps (default: by wall time only)")
     p.add_argument("--probes", default=None,
