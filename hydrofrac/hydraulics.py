@@ -222,22 +222,134 @@ def fluid_fill(edges_vertices, lengths, loaded, source, capacity, volume, order=
     The sources (the perforations, open to the wellbore) are always wet: ``volume`` is the
     fluid beyond them."""
     order, near = order if order is not None else fill_order(edges_vertices, lengths, loaded, source)
-    wet = np.zeros(edges_vertices.shape[0])
-    wet[np.asarray(loaded, dtype=bool) & np.asarray(source, dtype=bool)] = 1.0
-    cap = np.asarray(capacity, dtype=float)[order]
-    before = np.cumsum(cap) - cap
-    wet[order] = np.clip((volume - before) / np.maximum(cap, 1e-300), 0.0, 1.0)
+    wet = np.empty(edges_vertices.shape[0])
+    _fill(np.asarray(order, dtype=np.int64), np.ascontiguousarray(capacity, dtype=float),
+          np.asarray(loaded, dtype=np.bool_), np.asarray(source, dtype=np.bool_), float(volume), wet)
     return wet, near
+
+
+@njit(exact=True)
+def _clip01(x):
+    """x clipped to [0, 1], as ``np.clip(x, 0.0, 1.0)``."""
+    x = x if x > 0.0 else 0.0
+    return x if x < 1.0 else 1.0
+
+
+@njit(exact=True)
+def _fill(order, cap, loaded, source, volume, wet):
+    """:func:`fluid_fill`'s wet fractions into ``wet`` (m,): the loaded sources wet, the facets of
+    ``order`` each over the fraction of its capacity the volume left by those before it fills,
+    the rest dry.  The running sum is numpy's ``cumsum(cap) - cap``, in the same order."""
+    for i in range(wet.size):
+        wet[i] = 1.0 if loaded[i] and source[i] else 0.0
+    acc = 0.0
+    for k in range(order.size):
+        c = cap[order[k]]
+        acc += c
+        wet[order[k]] = _clip01((volume - (acc - c)) / (c if c > 1e-300 else 1e-300))
 
 
 def wet_points(wet, near, s_q):
     """(m, nq) wet fraction at each Gauss point (abscissae ``s_q`` in [0, 1] from va): a facet
     wet over the fraction ``wet`` from its ``near`` end, each point's share (1/nq) filled in
-    turn, so that the points' mean is the facet's fraction."""
-    nq = len(s_q)
-    rank = np.argsort(np.argsort(s_q))  # each point's place from va
-    from_near = np.where(np.asarray(near)[:, None] == 0, rank[None, :], nq - 1 - rank[None, :])
-    return np.clip(np.asarray(wet)[:, None] * nq - from_near, 0.0, 1.0)
+    turn, so that the points' mean is the facet's fraction (:func:`_wet_point`)."""
+    wet, near = np.ascontiguousarray(wet, dtype=float), np.ascontiguousarray(near, dtype=np.int64)
+    out = np.empty((wet.size, len(s_q)))
+    _wet_points(wet, near, _point_rank(s_q), out)
+    return out
+
+
+@njit(exact=True)
+def _wet_points(wet, near, rank, out):
+    for f in range(out.shape[0]):
+        for q in range(out.shape[1]):
+            out[f, q] = _wet_point(wet[f], near[f], rank[q], out.shape[1])
+
+
+def _point_rank(s_q):
+    """Each Gauss point's place from va (0 the nearest)."""
+    return np.argsort(np.argsort(s_q)).astype(np.int64)
+
+
+@njit(exact=True)
+def _wet_point(wet, near, rank, nq):
+    """The wet fraction of the Gauss point in place ``rank`` from va of a facet wet over the
+    fraction ``wet`` from its ``near`` end (0: va, 1: vb)."""
+    return _clip01(wet * nq - (rank if near == 0 else nq - 1 - rank))
+
+
+@njit(exact=True)
+def _row_sum(a, b, i):
+    """sum_j a[i, j] b[i, j] in numpy's order for a contiguous row (its pairwise sum: one running
+    sum from 0 below 8 terms, else eight running sums over blocks of 8, then the rest; numpy
+    splits rows above 128 terms, which a facet's Gauss points never reach), so that the compiled
+    update has the bits of ``(a * b).sum(axis=1)``."""
+    n = a.shape[1]
+    if n < 8:
+        res = 0.0
+        for j in range(n):
+            res += a[i, j] * b[i, j]
+        return res
+    r0, r1, r2, r3 = a[i, 0] * b[i, 0], a[i, 1] * b[i, 1], a[i, 2] * b[i, 2], a[i, 3] * b[i, 3]
+    r4, r5, r6, r7 = a[i, 4] * b[i, 4], a[i, 5] * b[i, 5], a[i, 6] * b[i, 6], a[i, 7] * b[i, 7]
+    j = 8
+    while j < n - n % 8:
+        r0 += a[i, j] * b[i, j]
+        r1 += a[i, j + 1] * b[i, j + 1]
+        r2 += a[i, j + 2] * b[i, j + 2]
+        r3 += a[i, j + 3] * b[i, j + 3]
+        r4 += a[i, j + 4] * b[i, j + 4]
+        r5 += a[i, j + 5] * b[i, j + 5]
+        r6 += a[i, j + 6] * b[i, j + 6]
+        r7 += a[i, j + 7] * b[i, j + 7]
+        j += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while j < n:
+        res += a[i, j] * b[i, j]
+        j += 1
+    return res
+
+
+@njit(exact=True)
+def _send_rows(D, opening, weights, ones, source, threshold, floor, out):
+    """This rank's rows of the network's state, (nf, 3) or with the capacity (nf, 4): whether
+    the facet is in the network (its mean damage at least ``threshold``, or a source), its
+    opening at both ends (the first and last Gauss points), and the fluid it holds: its mean
+    aperture times its length, at least ``floor`` (delta_bar' delta~ times the length)."""
+    nf, nq = D.shape
+    for f in range(nf):
+        out[f, 0] = 1.0 if _row_sum(D, ones, f) / nq >= threshold or source[f] else 0.0
+        out[f, 1], out[f, 2] = opening[f, 0], opening[f, nq - 1]
+        if out.shape[1] > 3:
+            c = _row_sum(opening, weights, f)
+            out[f, 3] = c if c >= floor[f] else floor[f]
+
+
+@njit(exact=True)
+def _point_loads(fp_ends, regularized, rise, s_q, source, loaded, volume, wet, near, rank, fp_q, wet_q, fp_wet, S0,
+                 cS):
+    """The load at each Gauss point of this rank's facets: the pressure factor f_p interpolated
+    from the facet's ends (``rise`` = 1 - s_q), 1 on sources, 0 on unloaded facets (all 1 on
+    loaded ones if not ``regularized``); with a fluid ``volume``, the wet fraction
+    (:func:`_wet_point`) and f_p times it; the separation law (S0, cS) of eq. (16)
+    (:func:`hydrofrac.riemann.hydraulic_law_pt`)."""
+    nf, nq = fp_q.shape
+    for f in range(nf):
+        for q in range(nq):
+            v = 1.0
+            if regularized and not source[f]:
+                v = fp_ends[f, 0] * rise[q] + fp_ends[f, 1] * s_q[q]
+            if not loaded[f]:
+                v = 0.0
+            fp_q[f, q] = v
+            on = 1.0 if loaded[f] else 0.0
+            if volume:
+                w = _wet_point(wet[f], near[f], rank[q], nq)
+                wet_q[f, q] = w
+                fp_wet[f, q] = v * w
+                on = on * w
+            S0[f, q, 0], cS[f, q] = rm.hydraulic_law_pt(on, v)
+            S0[f, q, 1] = 0.0
 
 
 @dataclass(frozen=True)
@@ -322,37 +434,44 @@ class Hydraulics:
         self._Sc = np.concatenate([p[2] for p in parts]).astype(float)
         self._L = np.concatenate([p[3] for p in parts]).astype(float)
         self._index = vertex_index(self._V)
+        # the per-step passes' fixed inputs (:meth:`update`)
+        nf = iface.facets.size
+        self._ones = np.ones((nf, iface.nq))  # (the damage's row sums: D * 1 is D)
+        self._floor = np.ascontiguousarray(np.broadcast_to(self.scale * iface.length, (nf,)), dtype=float)
+        self._rise = 1 - self.s_q  # the weight of a facet's end va at each Gauss point
+        self._rank = _point_rank(self.s_q)
+        self._factor_sources = (self._Src if params.connected else np.zeros(self._Src.size, dtype=bool))
+        self._no_ends, self._no_wet, self._no_near = np.zeros((nf, 2)), np.zeros(nf), np.zeros(nf, dtype=np.int64)
         counts = np.array([p[0].shape[0] for p in parts])
         offset = int(counts[: comm.rank].sum())
         self._mine = slice(offset, offset + iface.facets.size)
         self._counts = counts
         self.update()
 
-    def _gather_state(self, active, ends, cap):
+    def _gather_state(self, send):
         """(active, opening ends, capacity or None) of every rank's facets, in rank order: one
-        ``Allgatherv`` of a (facets, 3 or 4) array."""
-        cols = [active.astype(float)[:, None], ends] + ([cap[:, None]] if cap is not None else [])
-        k = 3 if cap is None else 4
-        send = np.ascontiguousarray(np.hstack(cols) if self.iface.facets.size else np.zeros((0, k)))
+        ``Allgatherv`` of this rank's (facets, 3 or 4) rows (:func:`_send_rows`)."""
+        k = send.shape[1]
         recv = np.empty((int(self._counts.sum()), k))
         sizes = self._counts * k
         self.comm.Allgatherv(send, [recv, sizes, np.r_[0, np.cumsum(sizes)[:-1]], MPI.DOUBLE])
-        return recv[:, 0] > 0.5, recv[:, 1:3], (recv[:, 3] if cap is not None else None)
+        return recv[:, 0] > 0.5, np.ascontiguousarray(recv[:, 1:3]), (np.ascontiguousarray(recv[:, 3]) if k == 4 else None)
 
     # ----------------------------------------------------------------- per step
     def update(self):
-        """Recompute the network, loaded facets and f_p from the current state (collective)."""
-        iface = self.iface
-        D = iface.state[0].mean(axis=1) if iface.facets.size else np.zeros(0)
-        active = (D >= self.params.threshold) | self.source
-        op = iface.state[1]
-        ends = np.stack([op[:, 0], op[:, -1]], axis=1) if iface.facets.size else np.zeros((0, 2))
-        volume = self.params.volume
+        """Recompute the network, loaded facets and f_p from the current state (collective).
+        Three compiled passes around the gather and the network's components: this rank's rows
+        (:func:`_send_rows`), the pressure factor at the vertices (:func:`_pressure_factor`)
+        and the fluid's front (:func:`_fill`), and the load at the Gauss points
+        (:func:`_point_loads`)."""
+        iface, params = self.iface, self.params
+        volume = params.volume
+        send = np.empty((iface.facets.size, 3 if volume is None else 4))
         # a facet holds the fluid of its mean aperture, at least δ̄'δ̃ (where it is fully loaded)
-        cap = (np.maximum((op * iface.weights).sum(axis=1), self.scale * iface.length) if volume is not None
-               else None)
+        _send_rows(iface.state[0], iface.state[1], iface.weights, self._ones, self.source,
+                   float(params.threshold), self._floor, send)
         # gather the whole network's state (the fixed part was gathered with the mesh)
-        A, E, Cap = self._gather_state(active, ends, cap)
+        A, E, Cap = self._gather_state(send)
         V, Src, mine = self._V, self._Src, self._mine
         # the components change only when a facet joins or leaves the network: reuse them
         # otherwise (the gathered arrays are the same on every rank, and so is the choice)
@@ -364,25 +483,28 @@ class Hydraulics:
             self._components = (A, Src, loaded)
         self.network = A[mine]
         self.loaded = loaded[mine]
-        if self.params.regularized:
-            fp_ends = pressure_factor_vertices(V, loaded, E, self._Sc, source=Src if self.params.connected else None,
-                                               index=self._index)[mine]
-            fp_q = fp_ends[:, :1] * (1 - self.s_q) + fp_ends[:, 1:] * self.s_q
-            fp_q[self.source] = 1.0
-        else:
-            fp_q = np.ones((iface.facets.size, iface.nq))
-        fp_q[~self.loaded] = 0.0
-        wet_q = None
+        fp_ends = (_pressure_factor(*self._index, loaded, E, self._Sc, self._factor_sources, params.connected)[mine]
+                   if params.regularized else self._no_ends)
+        wet, near = self._no_wet, self._no_near
         if volume is not None:
             # the fill order changes only with the loaded set (the same on every rank)
             if self._fill is None or not np.array_equal(self._fill[0], loaded):
                 self._fill = (loaded, fill_order(V, self._L, loaded, Src))
-            wet, near = fluid_fill(V, None, loaded, Src, Cap, volume(iface.solver.t), order=self._fill[1])
-            self.wet_q = wet_q = wet_points(wet[mine], near[mine], self.s_q)
+            order, near = self._fill[1]
+            wet = np.empty(A.size)
+            _fill(order, Cap, loaded, Src, float(volume(iface.solver.t)), wet)
+            wet, near = wet[mine], near[mine]
+        shape = (iface.facets.size, iface.nq)
+        fp_q, wet_q, fp_wet, S0, cS = np.empty(shape), np.empty(shape), np.empty(shape), np.empty(shape + (2,)), \
+            np.empty(shape)
+        _point_loads(fp_ends, params.regularized, self._rise, self.s_q, self.source, self.loaded, volume is not None,
+                     wet, near, self._rank, fp_q, wet_q, fp_wet, S0, cS)
+        if volume is not None:
+            self.wet_q = wet_q
         # the fraction of p_h a point carries: f_p behind the fluid's front
-        self.fp_q = fp_q if wet_q is None else fp_q * wet_q
+        self.fp_q = fp_q if volume is None else fp_wet
         # the separation law per Gauss point until the next update (eq. 16)
-        self._S0_unit, self._cS = rm.hydraulic_law(fp_q, self.loaded, wet_q)
+        self._S0_unit, self._cS = S0, cS
 
     def separation_traction(self, t):
         """Eq. (16) on loaded facets, S = 0 elsewhere, as the affine law of the interface

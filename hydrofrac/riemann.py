@@ -128,6 +128,15 @@ def separation_jump_pt(sB_n, S_n, Zt_n):
 
 
 @njit(exact=True)
+def hydraulic_law_pt(on, fp):
+    """Eq. (16) at one point as the affine separation law S^1 = p_h S0^1 + cS <-s_B^1>:
+    returns (S0^1, cS) = (-on f_p, -on (1 - f_p)), ``on`` the point's loaded fraction (0 on an
+    unloaded facet, 1 on a loaded one, its wet fraction behind a finite fluid's front) and
+    ``fp`` its pressure factor f_p."""
+    return -on * fp, -on * (1.0 - fp)
+
+
+@njit(exact=True)
 def effective_stress_pt(sB_n, sB_t, beta):
     """s_eff = sqrt(<s_B^1>^2 + (beta |s_B^2|)^2)."""
     a = macaulay_pt(sB_n)
@@ -348,12 +357,20 @@ def hydraulic_law(fp, loaded, wet=None):
     elsewhere S = 0.  ``fp`` (nf, nq), ``loaded`` (nf,); returns (S0 (nf, nq, 2), cS (nf, nq)).
     ``wet`` (nf, nq): the fraction of each point behind a finite fluid's front (docs/model.md,
     "A finite fluid volume"); its dry part is as an unloaded crack's, S = 0, so that
-    S^1 = -wet [f_p p_h + (1 - f_p) <-s_B^1>]."""
-    fp = np.asarray(fp, dtype=float)
-    on = np.asarray(loaded, dtype=bool)[:, None] * (1.0 if wet is None else np.asarray(wet, dtype=float))
+    S^1 = -wet [f_p p_h + (1 - f_p) <-s_B^1>].  (:func:`hydraulic_law_pt` at every point.)"""
+    fp = np.ascontiguousarray(fp, dtype=float)
+    on = np.ascontiguousarray(np.broadcast_to(np.asarray(loaded, dtype=bool)[:, None] * (
+        1.0 if wet is None else np.asarray(wet, dtype=float)), fp.shape))
     S0 = np.zeros(fp.shape + (2,))
-    S0[..., 0] = -on * fp
-    return S0, np.ascontiguousarray(-on * (1.0 - fp))
+    cS = np.empty(fp.shape)
+    _hydraulic_law_loop(on.reshape(-1), fp.reshape(-1), S0.reshape(-1, 2), cS.reshape(-1))
+    return S0, cS
+
+
+@njit(exact=True)
+def _hydraulic_law_loop(on, fp, S0, cS):
+    for i in range(fp.size):
+        S0[i, 0], cS[i] = hydraulic_law_pt(on[i], fp[i])
 
 
 def target_damage(s_eff, s_onset, s_bar):

@@ -165,6 +165,67 @@ def test_dry_crack_carries_no_traction():
     np.testing.assert_allclose(cS, [[0.0, -0.75]])
 
 
+# --------------------------------------------------------------------------- the compiled update
+@pytest.mark.parametrize("nq", [1, 2, 3, 4, 7, 8, 9, 16, 19])
+def test_the_compiled_update_has_the_bits_of_the_numpy_formulas(nq):
+    """Hydraulics.update's compiled passes give every bit the array formulas give (the row sums
+    in numpy's pairwise order, the fluid front from numpy's running sum, the load at the Gauss
+    points, eq. (16)): a last-digit change in the capacity or the front moves a re-fracture's
+    network (docs/benchmarks.md, "The hydraulic update in three compiled passes")."""
+    from hydrofrac import riemann as rm
+    from hydrofrac.hydraulics import _fill, _point_loads, _send_rows
+    rng = np.random.default_rng(nq)
+    m = 400
+    D = np.clip(rng.random((m, nq)) * 1.02, 0, 1)
+    D[::7] = 0.99 + 1e-17 * rng.standard_normal((len(D[::7]), nq))  # means at the threshold
+    op = rng.standard_normal((m, nq)) * 10.0 ** rng.uniform(-9, -3, (m, nq))
+    w = rng.random((m, nq)) * 10.0 ** rng.uniform(-3, 0, (m, 1))
+    source = rng.random(m) < 0.1
+    floor = 1e-6 * rng.random(m)
+    send = np.empty((m, 4))
+    _send_rows(D, op, w, np.ones((m, nq)), source, 0.99, floor, send)
+    np.testing.assert_array_equal(send[:, 0] > 0.5, (D.mean(axis=1) >= 0.99) | source)
+    np.testing.assert_array_equal(send[:, 1:3], np.stack([op[:, 0], op[:, -1]], axis=1))
+    np.testing.assert_array_equal(send[:, 3], np.maximum((op * w).sum(axis=1), floor))
+    # the fluid's front
+    loaded = rng.random(m) < 0.8
+    order = rng.permutation(np.flatnonzero(loaded & ~source))
+    cap = send[:, 3]
+    for V in (0.0, 0.3 * cap[order].sum(), 2 * cap.sum()):
+        wet = np.empty(m)
+        _fill(order, cap, loaded, source, V, wet)
+        want = np.zeros(m)
+        want[loaded & source] = 1.0
+        c = cap[order]
+        before = np.cumsum(c) - c
+        want[order] = np.clip((V - before) / np.maximum(c, 1e-300), 0.0, 1.0)
+        np.testing.assert_array_equal(wet, want)
+    # the load at the Gauss points
+    s, _ = np.polynomial.legendre.leggauss(nq)
+    s_q = 0.5 * (s + 1)
+    rank = np.argsort(np.argsort(s_q))
+    fp_ends = rng.random((m, 2))
+    near = (rng.random(m) < 0.5).astype(np.int64)
+    for regularized in (True, False):
+        for volume in (True, False):
+            out = [np.empty((m, nq)) for _ in range(3)] + [np.empty((m, nq, 2)), np.empty((m, nq))]
+            _point_loads(fp_ends, regularized, 1 - s_q, s_q, source, loaded, volume, wet, near, rank, *out)
+            fp = fp_ends[:, :1] * (1 - s_q) + fp_ends[:, 1:] * s_q if regularized else np.ones((m, nq))
+            fp[source & regularized] = 1.0
+            fp[~loaded] = 0.0
+            wq = np.clip(wet[:, None] * nq - np.where(near[:, None] == 0, rank, nq - 1 - rank), 0.0, 1.0)
+            np.testing.assert_array_equal(out[0], fp)
+            on = loaded[:, None] * (wq if volume else 1.0)
+            np.testing.assert_array_equal(out[3][..., 0], -on * fp)
+            np.testing.assert_array_equal(out[3][..., 1], 0.0)
+            np.testing.assert_array_equal(out[4], -on * (1.0 - fp))
+            if volume:
+                np.testing.assert_array_equal(out[1], wq)
+                np.testing.assert_array_equal(out[2], fp * wq)
+    S0, cS = rm.hydraulic_law(fp, loaded)
+    np.testing.assert_array_equal(cS, -(loaded[:, None] * 1.0) * (1.0 - fp))
+
+
 # --------------------------------------------------------------------------- bad input
 def test_bad_hydraulic_parameters():
     with pytest.raises(ValueError, match="increase strictly"):
