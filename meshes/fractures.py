@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from typing import List, Optional, Sequence, Tuple
 
@@ -519,6 +520,6 @@ def _fracture_mesh(comm, domain, perforations, fractures, paths, out, verbose, p
 
 def _tips(lines):
     """End points that belong to one line only (crack tips)."""
-    ends = [tuple(np.round(p, 9)) for pts in lines.values() for p in (pts[0], pts[-1])]
-    all_pts = [tuple(np.round(p, 9)) for pts in lines.values() for p in pts]
-    return [e for e in ends if all_pts.count(e) == 1]
+    rounded = [[tuple(p) for p in np.round(np.asarray(pts, dtype=float), 9).tolist()] for pts in lines.values()]
+    count = Counter(p for pts in rounded for p in pts)
+    return [e for pts in rounded for e in (pts[0], pts[-1]) if count[e] == 1]

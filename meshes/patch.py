@@ -343,8 +343,13 @@ def distribute(comm, arrays: MeshArrays, cell_tag: int):
 
 
 def _segments(polylines):
-    return {(tag, tuple(np.round(a, 12)), tuple(np.round(b, 12)))
-            for tag, line in polylines.items() for a, b in zip(line[:-1], line[1:])}
+    """{(tag, a, b)}: each polyline's segments, their ends rounded to 12 digits (each line rounded
+    in one pass: the whole network's segments at every remesh)."""
+    out = set()
+    for tag, line in polylines.items():
+        pts = [tuple(p) for p in np.round(np.asarray(line, dtype=float), 12).tolist()]
+        out.update((tag, a, b) for a, b in zip(pts[:-1], pts[1:]))
+    return out
 
 
 def new_segments(old: Dict[int, np.ndarray], new: Dict[int, np.ndarray]):
