@@ -676,16 +676,23 @@ class Interface:
         nf, nq = self.facets.size, self.nq
         if not T:
             return {}
-        D, eta, gamma = T["D"], T["eta"], T["gamma"]
-        frac = rm.mode_fractions(D, eta, gamma)
+        eta, gamma = T["eta"], T["gamma"]
         return {
             "D": self.state[0], "eta": eta.reshape(nf, nq), "gamma": gamma.reshape(nf, nq),
             "opening": self.state[1], "slip": self.state[2],
             "traction_n": T["s_star"][:, 0].reshape(nf, nq), "traction_t": T["s_star"][:, 1].reshape(nf, nq),
-            "mode": np.argmax(frac, axis=1).reshape(nf, nq).astype(np.int32),
+            "mode": self.modes(),
             # the permitted penetration of each crack, from the model parameters (model §4)
             "penetration_limit": np.repeat(abs(self.contact.delta0) * self.delta_scale[:, None], nq, axis=1),
         }
+
+    def modes(self):
+        """The dominant contact mode (:data:`MODE_BONDED` ... :data:`MODE_SEPARATED`) at every Gauss
+        point (nf, nq) of the last evaluated state: the largest of the four mode fractions (the
+        first where they tie)."""
+        T = self.last
+        frac = rm.mode_fractions(T["D"], T["eta"], T["gamma"])
+        return np.argmax(frac, axis=1).reshape(self.facets.size, self.nq).astype(np.int32)
 
     def part(self, extra: Optional[Dict[str, np.ndarray]] = None):
         """Line-mesh output part: per facet the points [a, q_1..q_nq, b] joined by

@@ -158,14 +158,14 @@ class RefractureMonitor(Monitor):
         hyd, iface, comm, t = problem.hydraulics, problem.interface, problem.comm, problem.t
         if self.t_reach is None:
             self.t_reach = np.full(iface.facets.size, np.inf)
-        fields = iface.fields()
         net = hyd.network[:, None] * iface.weights
-        sep = comm.allreduce(float(((fields["mode"] == MODE_SEPARATED) * net).sum()), op=MPI.SUM)
-        # closed: at or past contact, delta <= 0 up to round-off (1e-9 delta~: a face that never
-        # opened has delta = 0, and the last bits of a sum must not move it out of contact)
-        closed = comm.allreduce(float(((iface.state[1] <= 1e-9 * iface.delta_scale[:, None]) * net).sum()),
-                                op=MPI.SUM)
-        tot = comm.allreduce(float(net.sum()), op=MPI.SUM)
+        # (one reduction a step) the network's separated, closed and whole length; closed: at or
+        # past contact, delta <= 0 up to round-off (1e-9 delta~: a face that never opened has
+        # delta = 0, and the last bits of a sum must not move it out of contact)
+        sums = np.array([float(((iface.modes() == MODE_SEPARATED) * net).sum()),
+                         float(((iface.state[1] <= 1e-9 * iface.delta_scale[:, None]) * net).sum()),
+                         float(net.sum())])
+        sep, closed, tot = (float(x) for x in comm.allreduce(sums, op=MPI.SUM))
         self.sep_fraction.append((t, sep / max(tot, 1e-300), closed / max(tot, 1e-300)))
         if t >= self.t_off:
             self.energy_after_off.append((t, problem.solver.energy.balance_error))
