@@ -39,11 +39,14 @@ from . import riemann as rm
 from .boundary import PiecewiseLinear
 
 
-def components(edges_vertices: np.ndarray, active: np.ndarray) -> np.ndarray:
+def components(edges_vertices: np.ndarray, active: np.ndarray, index=None) -> np.ndarray:
     """Component label per facet of a crack network.
 
     edges_vertices : (m, 2) vertex ids of each facet (any integer ids)
     active : (m,) bool, facets in the network; inactive facets get -1
+    index : :func:`vertex_index` of ``edges_vertices``, if known (a network's, once per mesh):
+        then the graph is the vertices' with the active facets as edges, and a facet's label its
+        first vertex's (other numbers, the same components)
 
     Active facets sharing a vertex are joined: the connected components of the facet-vertex
     graph (``scipy.sparse.csgraph.connected_components``, compiled).
@@ -55,6 +58,13 @@ def components(edges_vertices: np.ndarray, active: np.ndarray) -> np.ndarray:
     idx = np.flatnonzero(active)
     if not idx.size:
         return labels
+    if index is not None:
+        ev, nv = index
+        a = ev[idx]
+        _, lab = connected_components(coo_matrix((np.ones(idx.size), (a[:, 0], a[:, 1])), shape=(nv, nv)),
+                                      directed=False)
+        labels[idx] = lab[a[:, 0]]
+        return labels
     uniq, inv = np.unique(np.asarray(edges_vertices)[idx].reshape(-1), return_inverse=True)
     n = idx.size + uniq.size  # nodes: the active facets, then their vertices
     rows = np.repeat(np.arange(idx.size), 2)
@@ -64,9 +74,10 @@ def components(edges_vertices: np.ndarray, active: np.ndarray) -> np.ndarray:
     return labels
 
 
-def loaded_facets(edges_vertices, active, source) -> np.ndarray:
-    """(m,) bool: active facets whose component contains an active source facet."""
-    roots = components(edges_vertices, active)
+def loaded_facets(edges_vertices, active, source, index=None) -> np.ndarray:
+    """(m,) bool: active facets whose component contains an active source facet (``index``:
+    as :func:`components`)."""
+    roots = components(edges_vertices, active, index)
     src_roots = np.unique(roots[active & source])
     return active & np.isin(roots, src_roots)
 
@@ -201,12 +212,13 @@ def _widest_paths(n, a, b, w, src_v):
     return best
 
 
-def fill_order(edges_vertices, lengths, loaded, source):
+def fill_order(edges_vertices, lengths, loaded, source, index=None):
     """(order, near) of :func:`fluid_fill`: the loaded facets that are not sources and are
     connected to one, in the order of their distance along the loaded network (the mean of the
     ends' Dijkstra distances; ties by index), and per facet (m,) the end nearer the sources
-    (0: va, 1: vb).  They change only when the loaded set does."""
-    dv = end_distances(edges_vertices, lengths, loaded, source)
+    (0: va, 1: vb).  They change only when the loaded set does.  ``index``: as
+    :func:`end_distances`."""
+    dv = end_distances(edges_vertices, lengths, loaded, source, index)
     dist = dv.mean(axis=1)
     idx = np.flatnonzero(np.asarray(loaded, dtype=bool) & ~np.asarray(source, dtype=bool) & np.isfinite(dist))
     order = idx[np.argsort(dist[idx], kind="stable")]
@@ -455,7 +467,8 @@ class Hydraulics:
         recv = np.empty((int(self._counts.sum()), k))
         sizes = self._counts * k
         self.comm.Allgatherv(send, [recv, sizes, np.r_[0, np.cumsum(sizes)[:-1]], MPI.DOUBLE])
-        return recv[:, 0] > 0.5, np.ascontiguousarray(recv[:, 1:3]), (np.ascontiguousarray(recv[:, 3]) if k == 4 else None)
+        cap = np.ascontiguousarray(recv[:, 3]) if k == 4 else None
+        return recv[:, 0] > 0.5, np.ascontiguousarray(recv[:, 1:3]), cap
 
     # ----------------------------------------------------------------- per step
     def update(self):
@@ -479,7 +492,7 @@ class Hydraulics:
         if cached is not None and np.array_equal(cached[0], A):
             loaded = cached[2]
         else:
-            loaded = loaded_facets(V, A, Src)
+            loaded = loaded_facets(V, A, Src, self._index)
             self._components = (A, Src, loaded)
         self.network = A[mine]
         self.loaded = loaded[mine]
@@ -489,7 +502,7 @@ class Hydraulics:
         if volume is not None:
             # the fill order changes only with the loaded set (the same on every rank)
             if self._fill is None or not np.array_equal(self._fill[0], loaded):
-                self._fill = (loaded, fill_order(V, self._L, loaded, Src))
+                self._fill = (loaded, fill_order(V, self._L, loaded, Src, self._index))
             order, near = self._fill[1]
             wet = np.empty(A.size)
             _fill(order, Cap, loaded, Src, float(volume(iface.solver.t)), wet)
@@ -536,23 +549,22 @@ class Hydraulics:
         return self.comm.allreduce(lf, op=MPI.SUM), self.comm.allreduce(ln, op=MPI.SUM)
 
 
-def end_distances(edges_vertices, lengths, active, source):
+def end_distances(edges_vertices, lengths, active, source, index=None):
     """(m, 2): each facet end's distance along the network (through ``active`` facets) from the
-    nearest vertex of an active source facet; inf where not connected."""
+    nearest vertex of an active source facet; inf where not connected.  ``index``:
+    :func:`vertex_index` of ``edges_vertices``, if known (the same graph, numbered once)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
-    ev = np.asarray(edges_vertices)
+    ev, n = vertex_index(edges_vertices) if index is None else index
     active, source = np.asarray(active, dtype=bool), np.asarray(source, dtype=bool)
-    uniq, inv = np.unique(ev.reshape(-1), return_inverse=True)
-    e = inv.reshape(-1, 2)[active]
+    e = ev[active]
     w = np.asarray(lengths, dtype=float)[active]
-    n = uniq.size
     G = coo_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
-    src = np.unique(inv.reshape(-1, 2)[active & source].reshape(-1))
+    src = np.unique(ev[active & source].reshape(-1))
     if src.size == 0:
         return np.full(ev.shape, np.inf)
     d = dijkstra(G, indices=src, min_only=True)
-    return d[inv.reshape(-1, 2)]
+    return d[ev]
 
 
 def network_distance(edges_vertices, lengths, active, source):

@@ -122,6 +122,36 @@ def test_connected_factor_is_the_widest_path():
         np.testing.assert_allclose(connected_factor(E, loaded, fp, source), brute(E, loaded, fp, source))
 
 
+def test_the_network_numbered_once_gives_the_same_loaded_set_and_fill_order():
+    """A network's vertex numbering, made once per mesh and passed as ``index``, gives the
+    loaded facets and the fluid's fill order of the numbering made at each call: the same
+    components (against a brute-force flood fill), the same distances bit for bit."""
+    from hydrofrac.hydraulics import fill_order, vertex_index
+
+    def flood(E, active, source):
+        on = set(np.flatnonzero(active & source))
+        grew = True
+        while grew:
+            verts = {v for i in on for v in E[i]}
+            new = {i for i in np.flatnonzero(active) if E[i, 0] in verts or E[i, 1] in verts} - on
+            on |= new
+            grew = bool(new)
+        return np.isin(np.arange(len(E)), sorted(on))
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        nv, m = rng.integers(3, 40), rng.integers(2, 60)
+        E = rng.integers(0, nv, size=(m, 2)) * 7 + 3
+        active = rng.random(m) < 0.7
+        source = (rng.random(m) < 0.15) & active
+        index = vertex_index(E)
+        loaded = loaded_facets(E, active, source, index)
+        np.testing.assert_array_equal(loaded, flood(E, active, source))
+        np.testing.assert_array_equal(loaded, loaded_facets(E, active, source))
+        L = rng.random(m)
+        for a, b in zip(fill_order(E, L, loaded, source, index), fill_order(E, L, loaded, source)):
+            np.testing.assert_array_equal(a, b)
+
+
 # --------------------------------------------------------------------------- a finite fluid volume
 def test_fluid_fills_the_network_from_the_sources_outward():
     """docs/model.md, "A finite fluid volume": a volume V fills the loaded facets in the order
