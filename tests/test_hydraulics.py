@@ -96,6 +96,16 @@ def test_pressure_factor_through_connected_apertures():
     np.testing.assert_allclose(conn[1], [1.0, 0.5])  # the closed vertex itself stays as open as it is
 
 
+def _random_networks(rng, max_vertices, max_facets, p_active, count=200):
+    """``count`` random networks (E, active, source): repeated edges, self-loops, several
+    sources among the active facets, vertex ids that are not 0..n-1."""
+    for _ in range(count):
+        nv, m = rng.integers(3, max_vertices), rng.integers(2, max_facets)
+        E = rng.integers(0, nv, size=(m, 2)) * 7 + 3
+        active = rng.random(m) < p_active
+        yield E, active, (rng.random(m) < 0.15) & active
+
+
 def test_connected_factor_is_the_widest_path():
     """Against a brute-force relaxation of max-min paths on random graphs (repeated edges,
     self-loops, several sources, unloaded facets)."""
@@ -113,12 +123,8 @@ def test_connected_factor_is_the_widest_path():
             out[i] = [b[E[i, 0]], b[E[i, 1]]]
         return out
     rng = np.random.default_rng(1)
-    for _ in range(200):
-        nv, m = rng.integers(3, 30), rng.integers(2, 50)
-        E = rng.integers(0, nv, size=(m, 2)) * 7 + 3
-        loaded = rng.random(m) < 0.8
-        source = (rng.random(m) < 0.15) & loaded
-        fp = rng.random((m, 2)) * (rng.random((m, 2)) < 0.7)
+    for E, loaded, source in _random_networks(rng, 30, 50, 0.8):
+        fp = rng.random((E.shape[0], 2)) * (rng.random((E.shape[0], 2)) < 0.7)
         np.testing.assert_allclose(connected_factor(E, loaded, fp, source), brute(E, loaded, fp, source))
 
 
@@ -138,16 +144,12 @@ def test_the_network_numbered_once_gives_the_same_loaded_set_and_fill_order():
             grew = bool(new)
         return np.isin(np.arange(len(E)), sorted(on))
     rng = np.random.default_rng(4)
-    for _ in range(200):
-        nv, m = rng.integers(3, 40), rng.integers(2, 60)
-        E = rng.integers(0, nv, size=(m, 2)) * 7 + 3
-        active = rng.random(m) < 0.7
-        source = (rng.random(m) < 0.15) & active
+    for E, active, source in _random_networks(rng, 40, 60, 0.7):
         index = vertex_index(E)
         loaded = loaded_facets(E, active, source, index)
         np.testing.assert_array_equal(loaded, flood(E, active, source))
         np.testing.assert_array_equal(loaded, loaded_facets(E, active, source))
-        L = rng.random(m)
+        L = rng.random(E.shape[0])
         for a, b in zip(fill_order(E, L, loaded, source, index), fill_order(E, L, loaded, source)):
             np.testing.assert_array_equal(a, b)
 
