@@ -334,10 +334,8 @@ def cod_sums(iface, tips, params: GrowthParams):
     """(Σ w δ, Σ w s, number of Gauss points) of crack ``tag`` within the window of ``tip``, for
     each (tag, tip) pair, over all ranks (one reduction; collective)."""
     sums = np.zeros((len(tips), 3))
-    xy = iface.points.reshape(-1, 2)
     for k, (tag, tip) in enumerate(tips):
-        on = iface.points_of_crack(tag)
-        on = on[np.linalg.norm(xy[on] - np.asarray(tip, float), axis=1) <= (params.cod_window or params.r)]
+        on = iface.points_near(tag, tip, params.cod_window or params.r)
         w = iface.weights.reshape(-1)[on]
         sums[k] = w @ iface.state[1].reshape(-1)[on], w @ iface.state[2].reshape(-1)[on], w.size
     iface.solver.comm.Allreduce(MPI.IN_PLACE, sums, op=MPI.SUM)
@@ -713,7 +711,8 @@ class GrowthDriver(RemeshDriver):
             return self._adapt_remesh(problem) if adapt_due else None
         import time as _time
         t_crit = _time.perf_counter()
-        extended = [i for i, p in enumerate(self.paths) if len(p) >= 2]
+        # (the tips that may still move: the active ones, and the arrested ones that may cross)
+        extended = [i for i, p in enumerate(self.paths) if len(p) >= 2 and (self.tips[i].active or i in self.arrested)]
         damage = dict(zip(extended, segment_damages(self.iface, [(self.tags[i], self.paths[i][-2], self.paths[i][-1])
                                                                  for i in extended])))
         ready = [i not in damage or damage[i] >= self.ready_damage for i in range(len(self.paths))]
@@ -853,8 +852,7 @@ class GrowthDriver(RemeshDriver):
             return (float("nan"), False)
         tag, tip = self.tags[i], np.asarray(self.paths[i][-1], float)
         mine = iface.points_of_crack(tag)
-        near = mine[np.linalg.norm(iface.points.reshape(-1, 2)[mine] - tip, axis=1) <= (self.params.cod_window
-                                                                                         or self.params.r)]
+        near = iface.points_near(tag, tip, self.params.cod_window or self.params.r)
         w = iface.weights.reshape(-1)
         hyd = getattr(getattr(self, "problem", None), "hydraulics", None)
         fp = hyd.fp_q.reshape(-1) if hyd is not None else np.zeros(w.size)
@@ -953,9 +951,17 @@ class GrowthDriver(RemeshDriver):
         cached = getattr(self, "_speeds", None)
         if cached is not None and cached[0] == key:
             return list(cached[1])
+        last, prev = {}, {}
+        for t, i, _, _ in self.events:
+            if i in last:
+                prev[i] = last[i]
+            last[i] = t
         out = [None] * len(self.tips)
-        for (t, i, _, _), v in zip(self.events, self.tip_speeds()):
-            out[i] = v
+        for i, t in last.items():  # (tip_speeds of each tip's last event: its path's last segment)
+            p = prev.get(i)
+            if p is not None and t > p:
+                seg = np.asarray(self.paths[i][-1]) - np.asarray(self.paths[i][-2])
+                out[i] = float(np.linalg.norm(seg) / (t - p))
         self._speeds = (key, out)
         return list(out)
 

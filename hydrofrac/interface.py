@@ -274,7 +274,7 @@ class Interface:
         self.nq = s.size
         self.points = va[:, None, :] + s[None, :, None] * tang[:, None, :]  # (nf, nq, 2)
         self.weights = w[None, :] * length[:, None]  # (nf, nq)
-        self._points_of_crack, self._on_segment = {}, {}  # (points_on_segment)
+        self._points_of_crack, self._on_segment, self._near = {}, {}, {}  # (points_on_segment, points_near)
         pts = self.points.reshape(-1, 2)
         ref = solver.ref
         g = solver.geometry
@@ -730,13 +730,25 @@ class Interface:
         idx = self._on_segment.get(key)
         if idx is None:
             on = self.points_of_crack(tag)
-            pts = self.points.reshape(-1, 2)[on]
             p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
             seg = p1 - p0
             L2 = float(seg @ seg)
-            u = (pts - p0) @ seg / L2
-            d = np.linalg.norm(pts - (p0 + np.clip(u, 0, 1)[:, None] * seg), axis=1)
-            idx = self._on_segment[key] = on[(u >= 0) & (u <= 1) & (d <= 1e-9 * max(1.0, np.sqrt(L2)))]
+            q = self.points.reshape(-1, 2)[on] - p0
+            u = q @ seg / L2
+            r = q - u[:, None] * seg  # (the offset from the segment where 0 <= u <= 1)
+            tol = 1e-9 * max(1.0, np.sqrt(L2))
+            idx = self._on_segment[key] = on[(u >= 0) & (u <= 1) & (r[:, 0] * r[:, 0] + r[:, 1] * r[:, 1] <= tol * tol)]
+        return idx
+
+    def points_near(self, tag, x, radius):
+        """Indices into the flattened Gauss points of crack ``tag``'s points within ``radius``
+        of the point ``x`` (kept for each point asked about, as :meth:`points_on_segment`)."""
+        key = (int(tag), *np.asarray(x, float).tolist(), float(radius))
+        idx = self._near.get(key)
+        if idx is None:
+            on = self.points_of_crack(tag)
+            idx = self._near[key] = on[np.linalg.norm(self.points.reshape(-1, 2)[on] - np.asarray(x, float), axis=1)
+                                       <= radius]
         return idx
 
     # ------------------------------------------------------------------ checkpoint

@@ -30,7 +30,7 @@ def _locate(solver, sets):
     """Locate the point sets ``sets`` (each (m_i, 2)) together: one bounding-box query and one
     reduction of the counts for all (collective); returns each set's (points, their owned
     cells' dof rows, basis values, the number of owned cells that contain each point over all
-    ranks), this rank's part of the first three."""
+    ranks, and the owned cells themselves), this rank's part of all but the fourth."""
     X = np.concatenate(sets) if sets else np.zeros((0, 2))
     nloc = compat.num_cells_local(solver.mesh)
     g = solver.geometry
@@ -55,26 +55,77 @@ def _locate(solver, sets):
     out, start = [], 0
     for S in sets:
         k = (pts >= start) & (pts < start + S.shape[0])
-        out.append((pts[k] - start, rows[k], phi[k], cnt[start:start + S.shape[0]]))
+        out.append((pts[k] - start, rows[k], phi[k], cnt[start:start + S.shape[0]], cells[k]))
         start += S.shape[0]
     return out
 
 
 def _located(solver, sets):
     """:func:`_locate` of ``sets``, cached per solver (a new mesh has a new solver) and point
-    set: the sets not in the cache are located together (collective: every rank asks for the
-    same sets, so every rank misses the same ones)."""
+    set: the sets not in the cache are taken from the previous mesh's cache where
+    :func:`carry_locations` allows, the rest located together (collective: every rank asks for
+    the same sets, so every rank misses the same ones)."""
     cache = solver.__dict__.setdefault("_probe_locations", {})
     keys = [X.tobytes() for X in sets]
     found = [cache.get(k) for k in keys]
     miss = [i for i, f in enumerate(found) if f is None]
     if miss:
-        for i, hit in zip(miss, _locate(solver, [sets[i] for i in miss])):
+        carried = _carried(solver, [keys[i] for i in miss])
+        for i, hit in zip(miss, carried):
             found[i] = hit
-            if len(cache) >= LOCATION_CACHE:
-                cache.pop(next(iter(cache)))
-            cache[keys[i]] = hit
+        miss = [i for i in miss if found[i] is None]
+        for i, hit in zip(miss, _locate(solver, [sets[i] for i in miss]) if miss else ()):
+            found[i] = hit
+        for i, k in enumerate(keys):
+            if k not in cache:
+                if len(cache) >= LOCATION_CACHE:
+                    cache.pop(next(iter(cache)))
+                cache[k] = found[i]
     return found
+
+
+def carry_locations(old, new, kept):
+    """After a remesh from solver ``old`` to ``new``: keep ``old``'s located point sets for
+    ``new``, to be taken (:func:`_carried`) where every owned cell that contained a point is
+    kept.  ``kept`` = (new index, old index) of the new owned cells that are this rank's old
+    owned cells, the same vertices in the same order (the transfer's exact copies outside a
+    local remesh's patch)."""
+    cache = old.__dict__.get("_probe_locations")
+    if not cache:
+        return
+    new_of = np.full(compat.num_cells_local(old.mesh), -1, dtype=np.int64)
+    new_of[kept[1]] = kept[0]
+    new.__dict__["_probe_carry"] = (dict(cache), new_of)
+
+
+def _carried(solver, keys):
+    """The located sets of :func:`carry_locations` for ``keys`` (None where not carried;
+    collective, one reduction when the previous mesh located any of them).
+
+    A set is carried when, over all ranks, each of its (point, owned cell) pairs has its cell
+    kept on the same rank.  A point that lies only in kept cells lies in no other cell of the
+    new mesh (both meshes are conforming, and the cells around it are the same triangles), so
+    the new mesh's location would find the same pairs: they are taken in its order (by point,
+    then new cell) with the new dof rows, and the basis values are the old ones (the same
+    vertices in the same order give the same reference coordinates, bit for bit)."""
+    carry = solver.__dict__.get("_probe_carry")
+    out = [None] * len(keys)
+    if carry is None:
+        return out
+    old_cache, new_of = carry
+    ask = [k for k, key in enumerate(keys) if key in old_cache]
+    if not ask:
+        return out
+    mapped = [new_of[old_cache[keys[k]][4]] for k in ask]
+    got = np.array([np.count_nonzero(c >= 0) for c in mapped], dtype=float)
+    solver.comm.Allreduce(MPI.IN_PLACE, got, op=MPI.SUM)
+    rows_of = compat.cell_dofs(solver.V)
+    for k, c, n in zip(ask, mapped, got):
+        pts, _, phi, cnt, _ = old_cache[keys[k]]
+        if n == cnt.sum():  # (cnt: each point's cells over all ranks)
+            order = np.lexsort((c, pts))
+            out[k] = (pts[order], rows_of[c[order]], phi[order], cnt, c[order])
+    return out
 
 
 def field_at(solver, points) -> np.ndarray:

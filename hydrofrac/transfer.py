@@ -25,7 +25,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 from scipy.spatial import cKDTree
 
-from . import compat
+from . import compat, probes
 from ._jit import njit
 
 
@@ -214,7 +214,8 @@ def transfer_fields(old, new, method="projection", k=16):
     projection in the energy inner product, so it never adds energy.  method "interpolation":
     the old fields at the new nodes.  Both move a polynomial field of degree <= p exactly.  A new
     cell with the same vertices as an old one (outside a local remesh's patch) takes the old
-    cell's values unchanged, bit for bit."""
+    cell's values unchanged, bit for bit, and the point sets located on the old mesh stay
+    located in it (:func:`hydrofrac.probes.carry_locations`)."""
     from .element import triangle_quadrature
     if method not in ("projection", "interpolation"):
         raise ValueError(f"transfer method must be 'projection' or 'interpolation'; got {method!r}")
@@ -231,6 +232,8 @@ def transfer_fields(old, new, method="projection", k=16):
     own = _owned_cells(old)
     same = old.degree == new.degree
     here_new, here_old = _same_cells(own[4], g.vertices[:n_new]) if same else (none, none)
+    in_order = (g.vertices[here_new] == own[4][here_old]).all(axis=(1, 2))  # (the same vertex order too)
+    probes.carry_locations(old, new, (here_new[in_order], here_old[in_order]))
     rest = np.setdiff1d(np.arange(n_new), here_new)
     x0, Jinv, cent, U, V_old = _exchange_near(comm, own, old.geometry.vertices[:n_old], g.vertices[rest])
     far_new, far_old = _same_cells(V_old, g.vertices[rest]) if same and comm.size > 1 else (none, none)

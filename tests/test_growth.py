@@ -231,6 +231,14 @@ def test_tip_speeds_and_the_rayleigh_speed():
     assert d.report()["tip_speed_max"] == pytest.approx(2000.0)
     assert ROCK.cR / ROCK.cs == pytest.approx(0.9110, abs=1e-4)
     assert ROCK.cR == pytest.approx(1663.2, abs=0.1)
+    # the current speed of a tip: its last extension's (a nucleated tip's first segment, from
+    # the centre, is no extension)
+    d.tips.append(Tip(np.array([1.0, 1.0]), np.array([0.0, 1.0])))
+    d.paths.append([np.array(p) for p in ([1.0, 0.9], [1.0, 1.0], [1.0, 1.1], [1.0, 1.25])])
+    d.events += [(3e-4, 2, 0.0, 1.0), (3.5e-4, 1, 0.0, 1.0), (3.6e-4, 2, 0.0, 1.0)]
+    d.paths[1].append(np.array([0.0, 1.3]))
+    assert d.tip_speeds()[4:] == [None, pytest.approx(500.0), pytest.approx(2500.0)]
+    assert d.current_speeds() == [d.tip_speeds()[3], d.tip_speeds()[5], d.tip_speeds()[6]]
 
 
 def test_a_failed_check_falls_back_to_the_state_before_it():

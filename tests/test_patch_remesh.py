@@ -145,6 +145,57 @@ def test_an_extension_changes_only_the_patch_on_2_ranks(monkeypatch):
     assert got < owned
 
 
+def located_sets_carried_over(comm, monkeypatch):
+    """Point sets located on the old mesh (the growth criterion's circles around the tips) and
+    asked for again on the new one: the sets outside the patch are taken from the old location
+    without a query, those in it are located again, and every set's location is the one a
+    query on the new mesh gives, array for array."""
+    from hydrofrac import probes
+    before = [[0.5, 0.0], [0.6, 0.0]]
+    full = fracture_mesh(comm, DOM, network=network(before))
+    patched = fracture_mesh(comm, DOM, network=network(before + [[0.7, 0.02]]), previous=full, patch_radius=0.3)
+    a = gathered(comm, full.arrays)
+    corner = None
+    if comm.rank == 0:  # an old vertex far from the patch and the middle of one of its edges
+        x = a.nodes[:, :2]
+        v = int(np.argmin(np.linalg.norm(x - [-1.2, 0.9], axis=1)))
+        t = a.tris[np.flatnonzero((a.tris == v).any(axis=1))[0]]
+        corner = np.array([x[v], 0.5 * (x[t[0]] + x[t[1]])])
+    corner = comm.bcast(corner, root=0)
+    angles = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
+    circle = np.column_stack([np.cos(angles), np.sin(angles)])
+    sets = [[-1.0, -1.0] + 0.1 * circle, [0.6, 0.0] + 0.05 * circle, corner, [1.5, 1.2] + 0.2 * circle]
+    old, new = solver_on(full), solver_on(patched)
+    old.set_initial_state(smooth)
+    probes.fields_at(old, sets)
+    transfer_fields(old, new)
+    queries = []
+    real = probes.compat.cells_containing
+    monkeypatch.setattr(probes.compat, "cells_containing", lambda m, X, c=None: queries.append(len(X)) or real(m, X, c))
+    got = probes.fields_at(new, sets)
+    assert queries == [24]  # the circle around the grown tip only
+    monkeypatch.setattr(probes.compat, "cells_containing", real)
+    carried = probes._located(new, [np.ascontiguousarray(X, dtype=float) for X in sets])
+    fresh = probes._locate(new, [np.ascontiguousarray(X, dtype=float) for X in sets])
+    for c, f in zip(carried, fresh):
+        for x, y in zip(c, f):
+            assert x.dtype == y.dtype and np.array_equal(x, y)
+    assert comm.allreduce(sum(len(f[0]) for f in fresh)) > 24 * 3 + 2  # (the corner's points on several cells)
+    assert all(np.isfinite(g).all() for g in got)
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial")
+def test_point_sets_outside_the_patch_stay_located(monkeypatch):
+    located_sets_carried_over(MPI.COMM_WORLD, monkeypatch)
+
+
+@pytest.mark.mpi
+def test_point_sets_outside_the_patch_stay_located_on_2_ranks(monkeypatch):
+    from hydrofrac.meshes import patch
+    monkeypatch.setattr(patch, "REBALANCE_TOLERANCE", np.inf)  # every kept cell stays on its rank
+    located_sets_carried_over(MPI.COMM_WORLD, monkeypatch)
+
+
 @pytest.mark.mpi
 def test_a_local_remesh_spreads_the_cells_again(monkeypatch):
     """Patch cells go to the ranks whose cells they replace, so the parts drift apart as cracks
