@@ -501,8 +501,8 @@ def segment_damages(iface, segments):
         return []
     D_all = iface.state[0].reshape(-1)
     local = np.zeros((len(segments), 2))
-    for k, (tag, p0, p1) in enumerate(segments):
-        D = D_all[iface.points_on_segment(tag, p0, p1)]
+    for k, on in enumerate(iface.points_on_segments(segments)):
+        D = D_all[on]
         local[k] = D.sum(), D.size
     iface.solver.comm.Allreduce(MPI.IN_PLACE, local, op=MPI.SUM)
     return [t[0] / t[1] if t[1] else float("nan") for t in local]

@@ -717,28 +717,41 @@ class Interface:
     def points_of_crack(self, tag):
         """Indices into the flattened Gauss points (and ``state[k].reshape(-1)``) of crack
         ``tag``'s points, in order (kept per crack: an interface lives on one mesh)."""
+        if not self._points_of_crack:  # (every crack's at once: its points in order)
+            tags = np.repeat(self.crack_tag, self.nq)
+            order = np.argsort(tags, kind="stable")
+            keys, first = np.unique(tags[order], return_index=True)
+            self._points_of_crack = dict(zip(keys.tolist(), np.split(order.astype(np.int64), first[1:])))
         on = self._points_of_crack.get(int(tag))
-        if on is None:
-            on = self._points_of_crack[int(tag)] = np.flatnonzero(np.repeat(self.crack_tag == tag, self.nq))
-        return on
+        return on if on is not None else np.zeros(0, np.int64)
 
     def points_on_segment(self, tag, p0, p1):
         """Indices into the flattened Gauss points (and ``state[k].reshape(-1)``) of crack
         ``tag``'s points on the segment p0 -> p1 (within 1e-9 of its length, or of 1 m).  Kept
         for each segment met: an interface lives on one mesh, so its points do not move."""
-        key = (int(tag), *np.asarray(p0, float).tolist(), *np.asarray(p1, float).tolist())
-        idx = self._on_segment.get(key)
-        if idx is None:
-            on = self.points_of_crack(tag)
-            p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
-            seg = p1 - p0
-            L2 = float(seg @ seg)
+        return self.points_on_segments([(tag, p0, p1)])[0]
+
+    def points_on_segments(self, segments):
+        """:meth:`points_on_segment` of each (tag, p0, p1) of ``segments``; those not met yet
+        found in one pass."""
+        keys = [(int(t), *np.asarray(a, float).tolist(), *np.asarray(b, float).tolist()) for t, a, b in segments]
+        miss = list({key: None for key in keys if key not in self._on_segment})
+        if miss:
+            ons = [self.points_of_crack(key[0]) for key in miss]
+            n = [o.size for o in ons]
+            on = np.concatenate(ons)
+            ends = np.array([key[1:] for key in miss], dtype=float).reshape(-1, 4)
+            p0, seg = ends[:, :2], ends[:, 2:] - ends[:, :2]
+            L2 = seg[:, 0] * seg[:, 0] + seg[:, 1] * seg[:, 1]
+            tol = 1e-9 * np.maximum(1.0, np.sqrt(L2))
+            p0, seg, L2, tol = (np.repeat(v, n, axis=0) for v in (p0, seg, L2, tol))
             q = self.points.reshape(-1, 2)[on] - p0
-            u = q @ seg / L2
+            u = (q[:, 0] * seg[:, 0] + q[:, 1] * seg[:, 1]) / L2
             r = q - u[:, None] * seg  # (the offset from the segment where 0 <= u <= 1)
-            tol = 1e-9 * max(1.0, np.sqrt(L2))
-            idx = self._on_segment[key] = on[(u >= 0) & (u <= 1) & (r[:, 0] * r[:, 0] + r[:, 1] * r[:, 1] <= tol * tol)]
-        return idx
+            hit = (u >= 0) & (u <= 1) & (r[:, 0] * r[:, 0] + r[:, 1] * r[:, 1] <= tol * tol)
+            for key, o, h in zip(miss, np.split(on, np.cumsum(n)[:-1]), np.split(hit, np.cumsum(n)[:-1])):
+                self._on_segment[key] = o[h]
+        return [self._on_segment[key] for key in keys]
 
     def points_near(self, tag, x, radius):
         """Indices into the flattened Gauss points of crack ``tag``'s points within ``radius``

@@ -16,6 +16,7 @@ import numpy as np
 from mpi4py import MPI
 
 from . import compat
+from ._jit import njit
 
 FIELDS = ("v_x", "v_y", "s_xx", "s_yy", "s_xy")
 CRACK_FIELDS = ("opening", "slip", "traction_n", "traction_t", "D", "eta", "f_p")
@@ -128,6 +129,19 @@ def _carried(solver, keys):
     return out
 
 
+@njit(exact=True)
+def _add_values(pts, rows, phi, U, out):
+    """out[pts[k]] += the fields at located pair k (its basis values ``phi[k]`` on the dof rows
+    ``rows[k]`` of ``U``), pair by pair in order: NumPy's ``einsum("kn,knc->kc")`` and ``bincount``
+    of the pairs, operation for operation."""
+    for k in range(pts.size):
+        for c in range(U.shape[1]):
+            v = 0.0
+            for n in range(phi.shape[1]):
+                v += phi[k, n] * U[rows[k, n], c]
+            out[pts[k], c] += v
+
+
 def field_at(solver, points) -> np.ndarray:
     """(m, 5): v and σ at ``points`` (m, 2), the same on every rank (collective)."""
     return fields_at(solver, [points])[0]
@@ -140,16 +154,11 @@ def fields_at(solver, point_sets) -> list:
     sizes = [X.shape[0] for X in sets]
     U = solver.x.array_r.reshape(-1, 5)
     located = _located(solver, sets)
-    starts = np.r_[0, np.cumsum(sizes)[:-1]] if sets else np.zeros(0, dtype=np.int64)
-    # every set's (point, cell) pairs at once: one product, and a sum over the cells of each point
-    pts = np.concatenate([lo[0] + s0 for lo, s0 in zip(located, starts)]) if sets else np.zeros(0, np.int64)
     out = np.zeros((sum(sizes), 5))
-    if pts.size:
-        rows = np.concatenate([lo[1] for lo in located])
-        phi = np.concatenate([lo[2] for lo in located])
-        vals = np.einsum("kn,knc->kc", phi, U[rows])
-        for c in range(5):
-            out[:, c] = np.bincount(pts, weights=vals[:, c], minlength=out.shape[0])
+    start = 0
+    for (pts, rows, phi, _, _), n in zip(located, sizes):
+        _add_values(pts, rows, phi, U, out[start:start + n])
+        start += n
     solver.comm.Allreduce(MPI.IN_PLACE, out, op=MPI.SUM)
     cnt = np.concatenate([lo[3] for lo in located]) if sets else np.zeros(0)
     with np.errstate(invalid="ignore", divide="ignore"):
