@@ -293,7 +293,11 @@ def near_tip_direction(K_I, K_II, beta=1.0, n=401, n_fine=201):
         c = np.cos(th / 2)
         stt = c * (K_I * c * c - 1.5 * K_II * np.sin(th))
         trt = 0.5 * c * (K_I * np.sin(th) + K_II * (3 * np.cos(th) - 1))
-        return rm.effective_stress(np.stack([stt, trt], axis=-1), beta)
+        # rm.effective_stress_pt, operation for operation, in NumPy: a run without nucleation
+        # would otherwise load the compiled ufunc (about 50 ms) at its first check
+        a = np.where(stt > 0.0, stt, 0.0)
+        b = beta * trt
+        return np.sqrt(a * a + b * b)
     th = np.linspace(-np.pi * 0.999, np.pi * 0.999, n)
     k = int(np.argmax(seff(th)))
     fine = np.linspace(th[max(k - 1, 0)], th[min(k + 1, n - 1)], n_fine)

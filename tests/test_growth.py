@@ -81,6 +81,28 @@ def test_mode_one_grows_straight():
         assert abs(cod) < 2.0, cod
 
 
+def test_the_singular_field_angle_uses_eq_10_bit_for_bit():
+    """near_tip_direction's s̆ is eq. (10) (riemann.effective_stress) operation for operation:
+    the same angle, bit for bit, for opening, shear and mixed modes, with and without the shear
+    term; pure mode II with beta = 0 kinks at the maximum hoop stress angle, -70.53 deg."""
+    from hydrofrac import riemann as rm
+
+    def reference(K_I, K_II, beta, n=401, n_fine=201):
+        def seff(th):
+            c = np.cos(th / 2)
+            stt = c * (K_I * c * c - 1.5 * K_II * np.sin(th))
+            trt = 0.5 * c * (K_I * np.sin(th) + K_II * (3 * np.cos(th) - 1))
+            return rm.effective_stress(np.stack([stt, trt], axis=-1), beta)
+        th = np.linspace(-np.pi * 0.999, np.pi * 0.999, n)
+        k = int(np.argmax(seff(th)))
+        fine = np.linspace(th[max(k - 1, 0)], th[min(k + 1, n - 1)], n_fine)
+        return argmax_parabola(fine, seff(fine))[0]
+    for K_II in (0.0, 0.3, -0.7, 1.0, 5.0):
+        for beta in (0.0, 0.5, 1.0, 2.0):
+            assert near_tip_direction(1.0, K_II, beta) == reference(1.0, K_II, beta), (K_II, beta)
+    assert math.degrees(near_tip_direction(0.0, 1.0, 0.0)) == pytest.approx(-70.53, abs=0.01)
+
+
 def test_mixed_mode_kink_angle():
     alpha = 30.0
     a = math.radians(alpha)
