@@ -645,14 +645,15 @@ class GrowthDriver(RemeshDriver):
         reason a meeting point within ``SNAP * da`` of a vertex of the crack met moves onto
         that vertex (:meth:`_at_vertex`)."""
         own = np.array(self.paths[me][:-1]) if me is not None else np.zeros((0, 2))
-        lines = list(self.obstacles) + [np.array(pth) for j, pth in enumerate(self.paths) if j != me and len(pth) > 1]
+        parts = [self._segments_of(None)] + [self._segments_of(j) for j, pth in enumerate(self.paths)
+                                             if j != me and len(pth) > 1]
         if len(own) > 1:
-            lines.append(own)
-        if not lines:
+            parts.append((own[:-1], np.diff(own, axis=0)))
+        if not sum(len(a) for a, _ in parts):
             return None
         # every segment of every line at once (the same arithmetic as one by one)
-        A = np.concatenate([np.asarray(line[:-1], float) for line in lines])
-        E = np.concatenate([np.diff(np.asarray(line, float), axis=0) for line in lines])
+        A = np.concatenate([a for a, _ in parts])
+        E = np.concatenate([e for _, e in parts])
         d = q - p
         snap = SNAP * self.da
         length = max(float(np.linalg.norm(d)), 1e-300)
@@ -682,6 +683,23 @@ class GrowthDriver(RemeshDriver):
         k = np.flatnonzero(ok)[np.argmin(dist[ok])]
         e = E[k]
         return (self._at_vertex(C[k], A[k], E[k], p), e / np.linalg.norm(e))
+
+    def _segments_of(self, j):
+        """(segment starts, segment vectors) of tip ``j``'s path, or of all the obstacles for
+        None; kept while the path is (it only grows, or is replaced by a restore)."""
+        cache = self.__dict__.setdefault("_segment_cache", {})
+        line = self.paths[j] if j is not None else self.obstacles
+        hit = cache.get(j)
+        if hit is not None and hit[0] is line and hit[1] == len(line):
+            return hit[2]
+        if j is None:
+            got = ((np.concatenate([o[:-1] for o in line]), np.concatenate([np.diff(o, axis=0) for o in line]))
+                   if line else (np.zeros((0, 2)), np.zeros((0, 2))))
+        else:
+            pts = np.array(line, float)
+            got = (pts[:-1], np.diff(pts, axis=0))
+        cache[j] = (line, len(line), got)
+        return got
 
     def _at_vertex(self, x, a, e, p):
         """The meeting point ``x`` on the crack segment a -> a + e, moved onto the nearest point
@@ -721,9 +739,7 @@ class GrowthDriver(RemeshDriver):
                                                                  for i in extended])))
         ready = [i not in damage or damage[i] >= self.ready_damage for i in range(len(self.paths))]
         if self.max_speed is not None:  # a tip advances da no sooner than da / max_speed after its last step
-            last = {}
-            for t, i, _, _ in self.events:
-                last[i] = t
+            last = self._last_extensions()[1]
             ready = [r and (i not in last or solver.t - last[i] >= self.da / self.max_speed * (1 - 1e-12))
                      for i, r in enumerate(ready)]
         before_state = self._state_before_check()  # (the fall-back if the remesh fails)
@@ -949,12 +965,16 @@ class GrowthDriver(RemeshDriver):
         return False, lines
 
     def current_speeds(self):
-        """Each tip's current speed [m/s]: that of its last extension (None before its second).
-        Kept while the events and paths are (checked at every criterion check)."""
+        """Each tip's current speed [m/s]: that of its last extension (None before its second)."""
+        return list(self._last_extensions()[0])
+
+    def _last_extensions(self):
+        """(:meth:`current_speeds`, {tip: time of its last extension}); kept while the events and
+        paths are (asked for at every criterion check)."""
         key = (len(self.events), len(self.tips), tuple(len(p) for p in self.paths))
         cached = getattr(self, "_speeds", None)
         if cached is not None and cached[0] == key:
-            return list(cached[1])
+            return cached[1:]
         last, prev = {}, {}
         for t, i, _, _ in self.events:
             if i in last:
@@ -966,8 +986,8 @@ class GrowthDriver(RemeshDriver):
             if p is not None and t > p:
                 seg = np.asarray(self.paths[i][-1]) - np.asarray(self.paths[i][-2])
                 out[i] = float(np.linalg.norm(seg) / (t - p))
-        self._speeds = (key, out)
-        return list(out)
+        self._speeds = (key, out, last)
+        return out, last
 
     def _nucleate(self, solver):
         """Start a crack at the best nucleation site if its s̆ reaches the strength (and the
