@@ -333,7 +333,11 @@ def check_interval(solver, check_every):
     CFL constant on this mesh, so that the check interval is the same time whatever the scheme
     and CFL constant (its steps are then fewer or more); exactly ``check_every`` for the
     default rk4 run.  The tip speeds and the growth events depend on this interval."""
-    return max(1, int(round(_check_period(solver, check_every) / solver.dt)))
+    key = (solver.dt, check_every, solver.h_over_c_min, solver.degree)  # (asked for at every step)
+    kept = solver.__dict__.get("_check_interval")
+    if kept is None or kept[0] != key:
+        kept = solver._check_interval = (key, max(1, int(round(_check_period(solver, check_every) / solver.dt))))
+    return kept[1]
 
 
 def fit_step_to_checks(solver, check_every):
