@@ -294,7 +294,7 @@ def near_tip_direction(K_I, K_II, beta=1.0, n=401, n_fine=201):
         stt = c * (K_I * c * c - 1.5 * K_II * np.sin(th))
         trt = 0.5 * c * (K_I * np.sin(th) + K_II * (3 * np.cos(th) - 1))
         # rm.effective_stress_pt, operation for operation, in NumPy: a run without nucleation
-        # would otherwise load the compiled ufunc (about 50 ms) at its first check
+        # would otherwise load the compiled ufunc (about 40 ms) at its first check
         a = np.where(stt > 0.0, stt, 0.0)
         b = beta * trt
         return np.sqrt(a * a + b * b)
