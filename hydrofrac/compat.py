@@ -116,9 +116,12 @@ def _mesh_and_tags(comm, cells, x, cell_tag, facets, facet_values, partition, gd
     """DOLFINx's mesh of this rank's ``cells`` and nodes ``x``, distributed by ``partition``, with
     every cell tagged ``cell_tag`` and the ``facets`` tagged ``facet_values``."""
     from dolfinx.io.gmshio import ufl_mesh
-    from dolfinx.cpp.graph import AdjacencyList_int32
+    from dolfinx.cpp.graph import AdjacencyList_int32, AdjacencyList_int64
     domain = ufl_mesh(2, gdim)  # Gmsh's element type 2: the 3-node triangle (its node order is DOLFINx's)
-    mesh = dolfinx.mesh.create_mesh(comm, cells, x, domain, ghost_mode=GHOST_MODE,
+    # the cells as an adjacency list: 0.5's create_mesh tries a 2D array first, and its failed
+    # overload formats both arrays into the TypeError (about 1 ms a remesh) before it retries so
+    mesh = dolfinx.mesh.create_mesh(comm, AdjacencyList_int64(np.ascontiguousarray(cells, dtype=np.int64)), x, domain,
+                                    ghost_mode=GHOST_MODE,
                                     partitioner=dolfinx.mesh.create_cell_partitioner(partition))
     tdim = mesh.topology.dim
     # every cell has the one tag: each rank tags its cells, ghosts included (what distributing
