@@ -428,6 +428,18 @@ def assemble_scalar(M, comm):
     return comm.allreduce(dolfinx.fem.assemble_scalar(M), op=MPI.SUM)
 
 
+def destroy(*objects):
+    """Free PETSc objects (vectors, matrices) now; None and freed ones are skipped.  Collective
+    over each object's communicator.  petsc4py 3.18 does not free an object that Python drops:
+    its memory stays until PetscFinalize (petsc issue 1309; DOLFINx's ``create_vector`` asks the
+    caller to call ``destroy()``).  A remesh that dropped its old solver leaked every vector of
+    it (docs/benchmarks.md, "A remesh freed none of the old solver's vectors").  Unchanged in
+    newer petsc4py, where ``destroy()`` is still the documented way."""
+    for obj in objects:
+        if obj is not None and obj.handle:
+            obj.destroy()
+
+
 def create_vector(V):
     """Ghosted PETSc vector with V's layout (0.9: ``dolfinx.fem.petsc.create_vector``)."""
     return dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)

@@ -79,6 +79,11 @@ class Problem:
         if self.hydraulics is not None:
             self.hydraulics.update()
 
+    def release(self):
+        """Free the PETSc objects of this problem (:meth:`hydrofrac.solver.Solver.release`) once
+        a remesh has replaced it; collective."""
+        return self.solver.release()
+
     def parts(self) -> Dict:
         """Output parts of one frame: the bulk fields and, with cracks, the crack line mesh
         (interface fields plus the hydraulic ones)."""

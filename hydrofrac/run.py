@@ -227,7 +227,9 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
             if remesh is None or not hasattr(remesh, "restart"):
                 raise CheckpointError(f"checkpoint in {ckpt.dir} is of a run that remeshed (crack growth); restart "
                                       "it with the same growth options")
-            problem = remesh.restart(str(data["geometry"]))  # the mesh of the checkpoint's crack geometry
+            first, problem = problem, remesh.restart(str(data["geometry"]))  # the checkpoint's crack geometry
+            if problem is not first:
+                first.release()
         ckpt.check_mesh(data, problem.solver.num_dofs, problem.solver)
         Checkpoint.load_into(data, problem, series)
         for m, st in zip(monitors, loads(data["monitors"])):
@@ -273,6 +275,7 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
 
     good = _snapshot(problem)
     before_last = None  # the state before a shortened last step: where a longer run continues
+    retired = []  # replaced problems that before_last still holds
     wall0 = time.perf_counter()
     last_progress = last_ckpt = wall0
     step0 = solver.step_count
@@ -321,8 +324,15 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
                 if new is not None:
                     for m in monitors:
                         m.remeshed(problem, new)
-                    problem = new
+                    old, problem = problem, new
                     solver = problem.solver
+                    # the old problem's PETSc vectors, freed (petsc4py does not when Python drops
+                    # them: hydrofrac.compat.destroy); the state before a shortened last step
+                    # holds it until the final checkpoint
+                    if before_last is not None and before_last[1][0] is old:
+                        retired.append(old)
+                    else:
+                        old.release()
                     loop["remeshes"] += 1
                     timed["remeshes"] += 1
                     # less the criterion's time, which the driver reports itself
@@ -380,6 +390,8 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
     else:
         snap, (prob, frame_list, done, mon, lp, geom) = before_last
         save(snap, (prob, frame_list, done, mon, dumps({**loads(lp), "finished_at": t_end}), geom))
+    for p in retired:
+        p.release()
     close()
 
     accuracy = dict(remesh.report()) if hasattr(remesh, "report") else {}

@@ -140,3 +140,19 @@ def check_shear_fracture(acc):
     assert abs(acc["energy_balance_error_relative"]) < 1e-2
 
 
+def malloc_in_use_mb():
+    """This process's heap memory in use [MB] (glibc's mallinfo2: what malloc handed out and
+    was not freed, PETSc's, DOLFINx's and NumPy's alike; the resident size would keep freed
+    pages), or None where the C library has no mallinfo2."""
+    import ctypes
+
+    class Info(ctypes.Structure):
+        _fields_ = [(n, ctypes.c_size_t) for n in ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks",
+                                                   "fsmblks", "uordblks", "fordblks", "keepcost")]
+    try:
+        fn = ctypes.CDLL("libc.so.6").mallinfo2
+    except (OSError, AttributeError):
+        return None
+    fn.restype = Info
+    m = fn()
+    return (m.uordblks + m.hblkhd) / 2**20

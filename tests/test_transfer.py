@@ -8,14 +8,19 @@
 * Interface state that is piecewise constant per old facet is preserved exactly at matching
   arc length (new Gauss points on old facets get that facet's value).
 """
+import gc
+
 import numpy as np
 import pytest
 from mpi4py import MPI
 
 from hydrofrac import ROCK, compat
+from hydrofrac.adapt import carry_over
 from hydrofrac.boundary import Absorbing
 from hydrofrac.interface import Crack, Interface, crack_facet_indices
 from hydrofrac.meshes.fractures import NATURAL, OUTER, Domain, Fracture, fracture_mesh
+from hydrofrac.problem import Problem
+from hydrofrac.run import RunOptions, run
 from hydrofrac.solver import Solver
 from hydrofrac.transfer import continue_run, transfer_fields, transfer_interface
 
@@ -23,14 +28,15 @@ A, SIGMA = 1.0, 1.0e6
 S0 = np.array([[0.0, 0.0], [0.0, SIGMA]])
 
 
-def cracked_plate(h, comm=MPI.COMM_WORLD, p=2):
+def cracked_plate(h, comm=MPI.COMM_WORLD, p=2, fm=None, attach=True):
     dom = Domain(half_width=8.0, half_height=8.0, wellbore_radius=0.0, h_crack=h, h_far=1.5, grading=2.0)
-    fm = fracture_mesh(comm, dom, fractures=[Fracture((0.0, 0.0), 0.0, 2 * A, friction=0.0)])
+    fm = fm or fracture_mesh(comm, dom, fractures=[Fracture((0.0, 0.0), 0.0, 2 * A, friction=0.0)])
     cracks = [Crack(NATURAL, friction=0.0, damage=1.0)]
     solver = Solver(fm.mesh, p, ROCK, facet_tags=fm.facet_tags, sigma0=S0, bcs=[Absorbing(OUTER, stress=S0)],
                     crack_facets=crack_facet_indices(fm.mesh, fm.facet_tags, cracks), relaxation=1500.0)
     iface = Interface(solver, fm.facet_tags, cracks)
-    solver.attach(iface)
+    if attach:
+        solver.attach(iface)
     return solver, iface
 
 
@@ -117,6 +123,50 @@ def test_remesh_of_unchanged_geometry_keeps_energy():
     change = abs(after / before - 1)
     print(f"total energy before {before:.6g} J/m, after the transfer {after:.6g} J/m (change {change:.3%})")
     assert change < 5e-3
+
+
+def frees_the_vectors_of_every_replaced_problem(tmp_path, comm):
+    """A run whose remesh hook rebuilds the cracked plate's solver and crack on the same mesh
+    at every step (the fields and crack state carried over): ``run`` frees the PETSc vectors of
+    every problem it replaced, which petsc4py does not when Python drops them
+    (:func:`hydrofrac.compat.destroy`), and memory in use stays flat."""
+    from helpers import malloc_in_use_mb
+    dom = Domain(half_width=8.0, half_height=8.0, wellbore_radius=0.0, h_crack=0.2, h_far=1.5, grading=2.0)
+    fm = fracture_mesh(comm, dom, fractures=[Fracture((0.0, 0.0), 0.0, 2 * A, friction=0.0)])
+
+    def problem():
+        return Problem(*cracked_plate(0.2, comm, fm=fm, attach=False))
+    vectors, in_use = [], []  # (the vectors of each replaced problem, not the problem: it must go)
+
+    def remesh(old):
+        new = problem()
+        carry_over(old, new)
+        vectors.append([old.solver.x, *old.solver._work, old.interface._r])
+        gc.collect()
+        in_use.append(malloc_in_use_mb())
+        return new
+    first = problem()
+    dt, steps = first.solver.dt, 24
+    run(first, RunOptions(t_end=steps * dt, out=str(tmp_path / "run"), frames=1, progress_wall=1e9), remesh=remesh)
+    assert len(vectors) == steps
+    assert all(v.handle == 0 for vs in vectors for v in vs), "a replaced problem's vector is still allocated"
+    # memory in use over the last 16 remeshes (the first ones fill the caches): a problem's
+    # vectors held x, 5 registers and the crack's residual, x alone ~0.3 MB a rank here
+    x_mb = first.solver.num_dofs * 8 / 2**20 / comm.size
+    if in_use[0] is not None:
+        growth = (in_use[-1] - in_use[-17]) / 16
+        print(f"memory in use: {growth:.3f} MB a remesh; one state vector {x_mb:.3f} MB")
+        assert growth < 0.5 * x_mb
+
+
+def test_a_run_frees_the_vectors_of_every_replaced_problem(tmp_path):
+    frees_the_vectors_of_every_replaced_problem(tmp_path, MPI.COMM_WORLD)
+
+
+@pytest.mark.mpi
+def test_a_run_frees_the_vectors_of_every_replaced_problem_on_2_ranks(tmp_path):
+    from pathlib import Path
+    frees_the_vectors_of_every_replaced_problem(Path(MPI.COMM_WORLD.bcast(str(tmp_path), root=0)), MPI.COMM_WORLD)
 
 
 def test_piecewise_constant_interface_state_is_preserved():
