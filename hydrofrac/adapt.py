@@ -362,7 +362,10 @@ class RemeshDriver:
     spaces) while the run goes on corrupted memory, found by bisection (a later numpy write
     crashed; the cause inside DOLFINx/petsc4py is not pinned down), and the run's writers hold
     the first mesh's communicator.  A mesh is small next to the fields and operators, which
-    are freed."""
+    are freed: the NumPy arrays when Python drops the old problem, its PETSc vectors by
+    :func:`hydrofrac.run.run` (:meth:`hydrofrac.problem.Problem.release`), since petsc4py frees
+    none that Python drops (docs/benchmarks.md, "A remesh freed none of the old solver's
+    vectors": a kept mesh holds about 0.2 kB per cell of its rank)."""
 
     def _mesh_args(self):
         raise NotImplementedError
