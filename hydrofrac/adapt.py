@@ -358,14 +358,16 @@ class RemeshDriver:
     with what :meth:`_mesh_args` gives, the log of meshes, and the adoption of a new problem
     (fields and state carried over, the old mesh kept).
 
-    Old meshes live as long as the driver: freeing a DOLFINx 0.5 mesh (with its function
-    spaces) while the run goes on corrupted memory, found by bisection (a later numpy write
-    crashed; the cause inside DOLFINx/petsc4py is not pinned down), and the run's writers hold
-    the first mesh's communicator.  A mesh is small next to the fields and operators, which
-    are freed: the NumPy arrays when Python drops the old problem, its PETSc vectors by
-    :func:`hydrofrac.run.run` (:meth:`hydrofrac.problem.Problem.release`), since petsc4py frees
-    none that Python drops (docs/benchmarks.md, "A remesh freed none of the old solver's
-    vectors": a kept mesh holds about 0.2 kB per cell of its rank)."""
+    The first mesh lives as long as the driver: the run's writers and collectives use its
+    communicator.  The others go with their problems: the NumPy arrays and the DOLFINx objects
+    when Python drops the problem, its PETSc objects before that (:func:`hydrofrac.run.run`,
+    :meth:`hydrofrac.problem.Problem.release`), since petsc4py frees none that Python drops.
+    Until stop 57 every old mesh was kept: freeing one had corrupted memory (a later numpy write
+    crashed).  The commit that kept them also removed a PETSc wrapper of a Function's array
+    that outlived its Function, and until stop 57 no PETSc vector was freed before its mesh's
+    communicator.  With both gone, freeing the meshes leaves the demo's and the full
+    re-fracture's records the same bytes (docs/benchmarks.md, "A remesh freed none of the old
+    solver's vectors")."""
 
     def _mesh_args(self):
         raise NotImplementedError
@@ -409,10 +411,15 @@ class RemeshDriver:
             self.adapt.undo(why)
             raise
 
+    def _keep_first_mesh(self, problem):
+        """Keep the mesh of the run's first problem alive (see the class)."""
+        if not self._old_meshes:
+            self._old_meshes.append(problem.solver.mesh)
+
     def _adopt(self, problem, new):
         """Make ``new`` (built on the new mesh) the current problem: fields and interface state
-        carried over from ``problem``, the old mesh kept alive, the mesh logged."""
-        self._old_meshes.append(problem.solver.mesh)
+        carried over from ``problem``, the first mesh kept alive, the mesh logged."""
+        self._keep_first_mesh(problem)
         carry_over(problem, new)
         self.problem = new
         self._log_mesh()
@@ -432,7 +439,7 @@ class AdaptDriver(RemeshDriver):
         self.adapt = Adaptivity(params)
         self.count = 0
         self.meshes = []  # (t, cells, dt)
-        self._old_meshes = []  # (RemeshDriver)
+        self._old_meshes = []  # the first mesh (RemeshDriver)
         self.last_criterion_s = 0.0
         self.problem = self._build()
         self._log_mesh()
@@ -475,7 +482,7 @@ class AdaptDriver(RemeshDriver):
         self.adapt.restore(st["adapt"])
         self.count = st["count"]
         self.meshes = [tuple(m) for m in st["meshes"]]
-        self._old_meshes.append(self.problem.solver.mesh)
+        self._keep_first_mesh(self.problem)
         self.problem = self._build()
         return self.problem
 

@@ -454,6 +454,12 @@ def function_vector(u):
     return u.vector
 
 
+def function_vector_made(u):
+    """The PETSc vector that :func:`function_vector` made of ``u``'s array, or None if it made
+    none (0.5 keeps it in ``_petsc_x``; 0.9: ``u.x._petsc_x``)."""
+    return getattr(u, "_petsc_x", None)
+
+
 def index_offset(V):
     """Global index of this rank's first owned block (0.9: ``index_map.local_range[0]`` still)."""
     return V.dofmap.index_map.local_range[0]

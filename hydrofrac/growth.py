@@ -600,7 +600,7 @@ class GrowthDriver(RemeshDriver):
         self.modes = []  # per event: (mode mixity [deg], the crack carried load), :meth:`_tip_mode`
         self.tree = []  # growth events with parent and child tips (growth.json's "tree")
         self.arrested = {}  # tip index -> (point, unit tangent of the crack it met)
-        self._old_meshes = []  # (kept until the driver goes: RemeshDriver)
+        self._old_meshes = []  # the first mesh, kept until the driver goes (RemeshDriver)
         for i, tip in enumerate(self.tips):  # a tip that starts on a crack is arrested there
             for line in self.obstacles:
                 if min(np.linalg.norm(line[0] - tip.point), np.linalg.norm(line[-1] - tip.point)) < 1e-9:
@@ -1172,7 +1172,7 @@ class GrowthDriver(RemeshDriver):
         """Rebuild the mesh of a checkpoint's geometry state; returns the new problem (at its
         initial state: the checkpoint's fields are loaded into it next)."""
         self.restore_state(text)
-        self._old_meshes.append(self.solver.mesh)
+        self._keep_first_mesh(self.problem)
         import json
         mesh = json.loads(text).get("mesh")
         if mesh is not None:

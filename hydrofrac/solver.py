@@ -586,14 +586,15 @@ class Solver:
 
     def release(self):
         """Free this solver's PETSc objects: the state x, the scheme's work vectors, the crack
-        interfaces' residual vectors and, with the assembled operator, its matrices and load
-        vectors (:func:`hydrofrac.compat.destroy`: petsc4py frees none of them when Python drops
-        the solver).  Collective; the solver is not used afterwards (the old solver of a remesh,
+        interfaces' residual vectors and, with the assembled operator, its matrices, load
+        vectors and the outer states' vectors (:func:`hydrofrac.compat.destroy`: petsc4py frees
+        none of them when Python drops the solver).  Collective; the solver is not used afterwards (the old solver of a remesh,
         once the new one holds its fields: :func:`hydrofrac.run.run`).  Returns the number of
         objects freed."""
         objs = [self.x, getattr(self, "x0", None), *getattr(self, "_work", ()), self.A, self._M,
                 getattr(self, "Minv", None), self.c0, *(c for _, c in self.c_hist),
-                *(o[2] for o in self.outer), getattr(getattr(self, "account", None), "Qd", None)]
+                *(o[2] for o in self.outer), *(compat.function_vector_made(o[1]) for o in self.outer),
+                getattr(getattr(self, "account", None), "Qd", None)]
         objs += [getattr(ext, "_r", None) for ext in self.extensions]
         freed = [o for o in objs if o is not None and o.handle]
         compat.destroy(*freed)

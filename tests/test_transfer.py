@@ -169,6 +169,47 @@ def test_a_run_frees_the_vectors_of_every_replaced_problem_on_2_ranks(tmp_path):
     frees_the_vectors_of_every_replaced_problem(Path(MPI.COMM_WORLD.bcast(str(tmp_path), root=0)), MPI.COMM_WORLD)
 
 
+def frees_the_meshes_of_every_replaced_problem(tmp_path, comm):
+    """A remesh driver (:class:`hydrofrac.adapt.RemeshDriver`) whose every remesh makes a new
+    mesh of the cracked plate: the run keeps the first mesh (its writers use that mesh's
+    communicator) and lets every later replaced mesh go."""
+    import weakref
+
+    from hydrofrac.adapt import RemeshDriver
+
+    def problem():
+        return Problem(*cracked_plate(0.2, comm, attach=False))
+
+    class EveryStep(RemeshDriver):
+        def __init__(self):
+            self.meshes, self._old_meshes, self.count = [], [], 0
+            self.problem = problem()
+
+        def __call__(self, old):
+            replaced.append(weakref.ref(old.solver.mesh))
+            self.count += 1
+            return self._adopt(old, problem())
+    replaced = []
+    driver = EveryStep()
+    steps = 6
+    run(driver.problem, RunOptions(t_end=steps * driver.problem.solver.dt, out=str(tmp_path / "run"), frames=1,
+                                   progress_wall=1e9), remesh=driver)
+    gc.collect()
+    assert len(replaced) == steps
+    assert replaced[0]() is not None, "the first mesh must stay: the run's writers use its communicator"
+    assert all(m() is None for m in replaced[1:]), "a replaced mesh is still alive"
+
+
+def test_a_run_frees_the_meshes_of_every_replaced_problem(tmp_path):
+    frees_the_meshes_of_every_replaced_problem(tmp_path, MPI.COMM_WORLD)
+
+
+@pytest.mark.mpi
+def test_a_run_frees_the_meshes_of_every_replaced_problem_on_2_ranks(tmp_path):
+    from pathlib import Path
+    frees_the_meshes_of_every_replaced_problem(Path(MPI.COMM_WORLD.bcast(str(tmp_path), root=0)), MPI.COMM_WORLD)
+
+
 def test_piecewise_constant_interface_state_is_preserved():
     old_s, old = cracked_plate(0.2)
     new_s, new = cracked_plate(0.13)
