@@ -356,7 +356,7 @@ class RemeshDriver:
     """What every ``remesh`` hook of :func:`hydrofrac.run.run` that builds new problems shares
     (:class:`AdaptDriver`, :class:`hydrofrac.growth.GrowthDriver`): ``build(what) -> Problem``
     with what :meth:`_mesh_args` gives, the log of meshes, and the adoption of a new problem
-    (fields and state carried over, the old mesh kept).
+    (fields and state carried over, the first mesh kept).
 
     The first mesh lives as long as the driver: the run's writers and collectives use its
     communicator.  The others go with their problems: the NumPy arrays and the DOLFINx objects

@@ -588,9 +588,9 @@ class Solver:
         """Free this solver's PETSc objects: the state x, the scheme's work vectors, the crack
         interfaces' residual vectors and, with the assembled operator, its matrices, load
         vectors and the outer states' vectors (:func:`hydrofrac.compat.destroy`: petsc4py frees
-        none of them when Python drops the solver).  Collective; the solver is not used afterwards (the old solver of a remesh,
-        once the new one holds its fields: :func:`hydrofrac.run.run`).  Returns the number of
-        objects freed."""
+        none of them when Python drops the solver).  Collective.  The solver is not used
+        afterwards: it is the old solver of a remesh, once the new one holds its fields
+        (:func:`hydrofrac.run.run`).  Returns the number of objects freed."""
         objs = [self.x, getattr(self, "x0", None), *getattr(self, "_work", ()), self.A, self._M,
                 getattr(self, "Minv", None), self.c0, *(c for _, c in self.c_hist),
                 *(o[2] for o in self.outer), *(compat.function_vector_made(o[1]) for o in self.outer),
