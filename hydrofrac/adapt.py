@@ -413,8 +413,8 @@ class RemeshDriver:
 
     def _keep_first_mesh(self, problem):
         """Keep the mesh of the run's first problem alive (see the class)."""
-        if not self._old_meshes:
-            self._old_meshes.append(problem.solver.mesh)
+        if not self._first_mesh:
+            self._first_mesh.append(problem.solver.mesh)
 
     def _adopt(self, problem, new):
         """Make ``new`` (built on the new mesh) the current problem: fields and interface state
@@ -439,7 +439,7 @@ class AdaptDriver(RemeshDriver):
         self.adapt = Adaptivity(params)
         self.count = 0
         self.meshes = []  # (t, cells, dt)
-        self._old_meshes = []  # the first mesh (RemeshDriver)
+        self._first_mesh = []  # the first mesh (RemeshDriver)
         self.last_criterion_s = 0.0
         self.problem = self._build()
         self._log_mesh()

@@ -434,10 +434,11 @@ def destroy(*objects):
     its memory stays until PetscFinalize (petsc issue 1309; DOLFINx's ``create_vector`` asks the
     caller to call ``destroy()``).  A remesh that dropped its old solver leaked every vector of
     it (docs/benchmarks.md, "A remesh freed none of the old solver's vectors").  Unchanged in
-    newer petsc4py, where ``destroy()`` is still the documented way."""
-    for obj in objects:
-        if obj is not None and obj.handle:
-            obj.destroy()
+    newer petsc4py, where ``destroy()`` is still the documented way.  Returns the number freed."""
+    live = [obj for obj in objects if obj is not None and obj.handle]
+    for obj in live:
+        obj.destroy()
+    return len(live)
 
 
 def create_vector(V):

@@ -600,7 +600,7 @@ class GrowthDriver(RemeshDriver):
         self.modes = []  # per event: (mode mixity [deg], the crack carried load), :meth:`_tip_mode`
         self.tree = []  # growth events with parent and child tips (growth.json's "tree")
         self.arrested = {}  # tip index -> (point, unit tangent of the crack it met)
-        self._old_meshes = []  # the first mesh, kept until the driver goes (RemeshDriver)
+        self._first_mesh = []  # the first mesh, kept until the driver goes (RemeshDriver)
         for i, tip in enumerate(self.tips):  # a tip that starts on a crack is arrested there
             for line in self.obstacles:
                 if min(np.linalg.norm(line[0] - tip.point), np.linalg.norm(line[-1] - tip.point)) < 1e-9:

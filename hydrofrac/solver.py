@@ -595,10 +595,7 @@ class Solver:
                 getattr(self, "Minv", None), self.c0, *(c for _, c in self.c_hist),
                 *(o[2] for o in self.outer), *(compat.function_vector_made(o[1]) for o in self.outer),
                 getattr(getattr(self, "account", None), "Qd", None)]
-        objs += [getattr(ext, "_r", None) for ext in self.extensions]
-        freed = [o for o in objs if o is not None and o.handle]
-        compat.destroy(*freed)
-        return len(freed)
+        return compat.destroy(*objs, *(getattr(ext, "_r", None) for ext in self.extensions))
 
     def attach(self, extension):
         """Make ``extension`` (a crack :class:`~hydrofrac.interface.Interface`) part of the

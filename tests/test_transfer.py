@@ -151,7 +151,7 @@ def frees_the_vectors_of_every_replaced_problem(tmp_path, comm):
     assert len(vectors) == steps
     assert all(v.handle == 0 for vs in vectors for v in vs), "a replaced problem's vector is still allocated"
     # memory in use over the last 16 remeshes (the first ones fill the caches): a problem's
-    # vectors held x, 5 registers and the crack's residual, x alone ~0.3 MB a rank here
+    # vectors are x, 5 registers and the crack's residual; x alone is 0.1 MB on 1 rank here
     x_mb = first.solver.num_dofs * 8 / 2**20 / comm.size
     if in_use[0] is not None:
         growth = (in_use[-1] - in_use[-17]) / 16
@@ -182,7 +182,7 @@ def frees_the_meshes_of_every_replaced_problem(tmp_path, comm):
 
     class EveryStep(RemeshDriver):
         def __init__(self):
-            self.meshes, self._old_meshes, self.count = [], [], 0
+            self.meshes, self._first_mesh, self.count = [], [], 0
             self.problem = problem()
 
         def __call__(self, old):
