@@ -185,17 +185,6 @@ def crack_facet_indices(mesh, facet_tags, cracks: Sequence[Crack]):
     return np.unique(idx).astype(np.int32)
 
 
-def _sum(dt, coefficients, rates):
-    """dt sum_j a_j r_j over the nonzero coefficients (None: none)."""
-    terms = [(a, r) for a, r in zip(coefficients, rates) if a]
-    if not terms:
-        return None
-    out = (dt * terms[0][0]) * terms[0][1]
-    for a, r in terms[1:]:
-        out += (dt * a) * r
-    return out
-
-
 class Interface:
     """Interfacial damage model on the crack facets of a :class:`~hydrofrac.solver.Solver`.
 
@@ -550,32 +539,43 @@ class Interface:
         facets' flux to the cell residual ``R`` of the owned cells, and to the dof-vector residual
         for ghost cells (:meth:`fold_received` completes it), and return the state at t + dt.
         The stages are :data:`ADER_STAGES`' for the solver's degree: stage k reads the cells'
-        Taylor predictor at t + c_k dt (``taylor(X, Qs, cells, taus)`` for all the stage times at once,
+        Taylor predictor at t + c_k dt (``taylor(X, Q, cells, taus)`` for all the stage times at once,
         :meth:`hydrofrac.matfree.MatrixFreeOperator.taylor_values`; ``X`` itself, the local
         values with ghosts, at c_k = 0) with the state z_n + dt sum_j A_kj r_j, and its
         quadrature weights carry b_k dt.  The new state z_n + dt sum_k b_k r_k is made
-        admissible by :meth:`advance`, as every stage's."""
+        admissible as by :meth:`advance`, as every stage's.  The stages run in one compiled call
+        (:func:`hydrofrac.kernels.ader_interface_step`), after the Taylor values."""
         t0 = time.perf_counter()
         c, A, b = self.ADER_STAGES[min(self.solver.degree, 3)]
         if self._ader is None or self._ader[0] != dt:
             P = self._facets.P
-            weighted = []
-            for bk in b:
-                Pk = P.copy()
-                Pk[:, kernels.WEIGHTS:kernels.WEIGHTS + self.nq] *= dt * bk
-                weighted.append(self._facets._replace(P=Pk))
+            PW = np.empty((len(b),) + P.shape)
+            for k, bk in enumerate(b):
+                PW[k] = P
+                PW[k, :, kernels.WEIGHTS:kernels.WEIGHTS + self.nq] *= dt * bk
             times = sorted({ck for ck in c if ck})
-            Q = self._ader[4] if self._ader is not None else {}
-            Q = {ck: Q[ck] if ck in Q and Q[ck].shape == X.shape else np.zeros_like(X) for ck in times}
-            self._ader = (dt, np.unique(self.cells.reshape(-1)).astype(np.int64), weighted, times, Q)
-        _, cells, weighted, times, Q = self._ader
-        taylor(X, [Q[ck] for ck in times], cells, [ck * dt for ck in times])  # (each stage time's traces)
-        z0 = self.state
-        rates = []
-        for k, (ck, Ak, Fk) in enumerate(zip(c, A, weighted)):
-            self.stage_state = self.advance(z0, _sum(dt, Ak, rates)) if k else z0
-            rates.append(self._stage(Q[ck] if ck else X, t + ck * dt, R, R.shape[0], Fk))
-        z = self.advance(z0, _sum(dt, b, rates))
+            Q = self._ader[4] if self._ader is not None else None
+            if Q is None or Q.shape != (len(times), X.size):
+                Q = np.zeros((len(times), X.size))  # (rows: the stage times' traces; other blocks unused)
+            rows = np.array([times.index(ck) if ck else -1 for ck in c], dtype=np.int64)
+            Am = np.zeros((len(b), len(b)))
+            for k, Ak in enumerate(A):
+                Am[k, :len(Ak)] = Ak
+            self._ader = (dt, np.unique(self.cells.reshape(-1)).astype(np.int64), PW, times, Q, rows, Am,
+                          np.array(b, dtype=float))
+        _, cells, PW, times, Q, rows, Am, bv = self._ader
+        taylor(X, Q, cells, [ck * dt for ck in times])  # (each stage time's traces)
+        laws = [self._separation(t + ck * dt) for ck in c]
+        if all(S0 is laws[0][0] and cS is laws[0][1] for S0, cS, _ in laws):  # (one law's arrays: no copy)
+            S0s, cSs = laws[0][0][None], laws[0][1][None]
+        else:
+            S0s, cSs = np.stack([law[0] for law in laws]), np.stack([law[1] for law in laws])
+        with self._r.localForm() as rl:  # (zero except between a stage and its finish)
+            z, count, depth = kernels.ader_interface_step(
+                X, Q, rows, R, rl.array, R.shape[0], Am, bv, dt, PW, self._facets.I, self.nq, self._nb,
+                np.ascontiguousarray(self.state), S0s, cSs, np.array([law[2] for law in laws], dtype=float),
+                *self._laws, *self._admissible())
+        self._count_clips(count, depth)
         self.solver.timers.add("interface kernel", time.perf_counter() - t0)
         return z
 
@@ -603,19 +603,27 @@ class Interface:
         step; elsewhere by the Runge-Kutta sum.  The opening clip at the floor (the maximum
         penetration, where eta = 1 and d(delta)/dt = 0) stays as a counted safety net.  One
         compiled pass (:func:`hydrofrac.kernels.advance_state`)."""
-        c_ = self.contact
-        free = c_.regularized and c_.penalty is None
         if inc is None:
             inc = np.zeros((4,) + z0.shape[1:])
         elif inc.shape[0] < 4:  # (no free-opening row: no closing flow)
             inc = np.concatenate([inc, np.zeros((4 - inc.shape[0],) + z0.shape[1:])])
-        z, count, depth = kernels.advance_state(np.ascontiguousarray(z0), np.ascontiguousarray(inc), self.state[0],
-                                                self.delta_scale, 0.0 if c_.delta0 is None else float(c_.delta0),
-                                                bool(free and c_.local_flow), bool(free and c_.clip))
+        z, count, depth = kernels.advance_state(np.ascontiguousarray(z0), np.ascontiguousarray(inc),
+                                                *self._admissible())
+        self._count_clips(count, depth)
+        return z
+
+    def _admissible(self):
+        """The arguments of :func:`hydrofrac.kernels.advance_state` after the state and its
+        increment: the damage floor D_n, delta~, delta'_0, the closing flow on, the clip on."""
+        c_ = self.contact
+        free = c_.regularized and c_.penalty is None
+        return (self.state[0], self.delta_scale, 0.0 if c_.delta0 is None else float(c_.delta0),
+                bool(free and c_.local_flow), bool(free and c_.clip))
+
+    def _count_clips(self, count, depth):
         if count:  # the dynamics overshot the permitted penetration: count it
             self.clip_count += int(count)
             self.clip_depth = max(self.clip_depth, float(depth))
-        return z
 
     def end_step(self, x, t, dt):
         t0 = time.perf_counter()

@@ -221,6 +221,67 @@ def interface_targets_flat(X, P, I, nq, nb, D, delta, S0, cS, scale, reg, d0, w0
                       Targets(vp, vm, sp, sm, s_B, S, s_star, vp_star, vm_star, eta, gamma, w))
 
 
+@njit(exact=True)
+def _combine(out, dt, coefs, rates, n):
+    """out = sum_j (dt a_j) r_j over the first ``n`` rates with a nonzero coefficient a_j, in
+    their order; zero if none."""
+    first = True
+    for j in range(n):
+        if coefs[j] == 0.0:
+            continue
+        c = dt * coefs[j]
+        rj = rates[j]
+        if first:
+            for i in range(out.shape[0]):
+                for f in range(out.shape[1]):
+                    for q in range(out.shape[2]):
+                        out[i, f, q] = c * rj[i, f, q]
+            first = False
+        else:
+            for i in range(out.shape[0]):
+                for f in range(out.shape[1]):
+                    for q in range(out.shape[2]):
+                        out[i, f, q] += c * rj[i, f, q]
+    if first:
+        out[:] = 0.0
+
+
+@njit(exact=True)
+def ader_interface_step(X, Q, rows, R, r, nowned, A, b, dt, PW, I, nq, nb, z0, S0, cS, scales, reg, d0, w0, kappa,
+                        beta, s_onset, s_bar, a, D_n, delta_scale, delta0, flow, clip):
+    """ADER's whole step on the crack facets in one call (:meth:`hydrofrac.interface.Interface.
+    ader_step`): stage k (of the explicit scheme A, b) takes the traces of ``X`` (rows[k] < 0)
+    or of the Taylor values ``Q[rows[k]]``, the state z0 + dt sum_j A_kj r_j made admissible
+    (:func:`advance_state`), the facet records ``PW[k]`` (their weights times b_k dt) and the
+    separation law (S0[k], cS[k] or the one pair for all, scales[k]); its flux goes into R and
+    r (:func:`interface_stage`).  Returns the admissible state z0 + dt sum_k b_k r_k, the
+    openings clipped over the step and the deepest clip: the operations of the stage-by-stage
+    driver, one after the other, so the same bits without its per-stage calls."""
+    ns = b.size
+    nf = z0.shape[1]
+    rates = np.empty((ns, 4, nf, nq))
+    inc = np.empty((4, nf, nq))
+    count = 0
+    depth = 0.0
+    L = Laws(reg, d0, w0, kappa, beta, s_onset, s_bar, a)
+    for k in range(ns):
+        z = z0
+        if k:
+            _combine(inc, dt, A[k], rates, k)
+            z, n, d = advance_state(z0, inc, D_n, delta_scale, delta0, flow, clip)
+            count += n
+            depth = max(depth, d)
+        m = k if S0.shape[0] > 1 else 0
+        F, Z, Sep = Facets(PW[k], I, nq, nb), State(z[0], z[1]), Separation(S0[m], cS[m], scales[k])
+        if rows[k] < 0:
+            interface_stage(X, R, r, nowned, rates[k], F, Z, Sep, L)
+        else:
+            interface_stage(Q[rows[k]], R, r, nowned, rates[k], F, Z, Sep, L)
+    _combine(inc, dt, b, rates, ns)
+    z, n, d = advance_state(z0, inc, D_n, delta_scale, delta0, flow, clip)
+    return z, count + n, max(depth, d)
+
+
 #: facets ahead whose cells' field values and residual rows are prefetched: the interface
 #: pass follows the bulk pass, which has pushed them out of the nearer caches
 _AHEAD = 6

@@ -717,6 +717,7 @@ class MatrixFreeOperator:
         # for a cell-contiguous space; otherwise, or with HYDROFRAC_KERNELS=numba, the numba ones
         self.kernels = native.backend() if self.contiguous else "numba"
         self._cvolume = self._cfacets = self._cader = self._cenergy = self._cdiss = None  # (ADER's when first used)
+        self._ctaylor = None  # (when first used)
         if self.kernels == "c":
             nk = self.fnodes.shape[1]
             self._cvolume = native.VolumeKernel(nb, nk, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
@@ -835,13 +836,22 @@ class MatrixFreeOperator:
                             self.Minv_ref, self.mat, self.Btab, *self._derivatives(), float(dt), int(order))
         self._R_clear = True
 
-    def taylor_values(self, x, Qs, cells, taus, order):
-        """Qs[i] = the cell-local Taylor predictor from ``x`` at the time ``taus[i]`` into the
-        step, sum_{m=0..order} tau^m/m! D^m x, on ``cells`` (owned or ghost; ``x`` and each Q:
-        local arrays with ghosts, the other blocks of Q left as they are): the traces ADER's crack
-        interfaces see inside a step (:meth:`hydrofrac.interface.Interface.ader_step`).  D is
-        :meth:`local_derivative`'s operator, here the numba volume kernel on those cells' own
-        data (gathered once per list of cells); each D^m x once for all the times."""
+    def taylor_values(self, x, Q, cells, taus, order):
+        """Q[i] = the cell-local Taylor predictor from ``x`` at the time ``taus[i]`` into the
+        step, sum_{m=0..order} tau^m/m! D^m x, on ``cells`` (owned or ghost; ``x``: the local
+        array with ghosts, ``Q``: (len(taus), x.size), its other blocks left as they are): the
+        traces ADER's crack interfaces see inside a step
+        (:meth:`hydrofrac.interface.Interface.ader_step`).  D is :meth:`local_derivative`'s
+        operator.  With the C kernels, one pass in blocks of cells
+        (:class:`hydrofrac.native.TaylorKernel`, ADER's predictor on the listed cells); else the
+        numba volume kernel on those cells' own data (gathered once per list of cells).  Each
+        D^m x once for all the times."""
+        if self.kernels == "c":
+            if self._ctaylor is None:
+                self._ctaylor = native.TaylorKernel(self.dofs.shape[1], self.fnodes.shape[1], self.dofs.shape[0],
+                                                    self.Jinv, self.mat, self.Btab, *self._derivatives())
+            self._ctaylor(Q, x, cells, taus, order)
+            return
         key = id(cells)
         if self._taylor is None or self._taylor[0] != key:
             vol = _kernels(self.dofs.shape[1], self.fnodes.shape[1], False)[0]  # (any dof numbering)
@@ -853,14 +863,14 @@ class MatrixFreeOperator:
         out = work[0]
         vol(out, Rzero, x, d, d.shape[0], self.S0, self.S1, Jinv, invdet, self.Minv_ref, mat, self.Btab)
         coefs = [float(tau) for tau in taus]
-        for Q, coef in zip(Qs, coefs):
-            _add_blocks(Q, x, out, d, coef)
+        for Qi, coef in zip(Q, coefs):
+            _add_blocks(Qi, x, out, d, coef)
         for m in range(2, order + 1):
             src, out = out, work[m % 2]
             vol(out, Rzero, src, d, d.shape[0], self.S0, self.S1, Jinv, invdet, self.Minv_ref, mat, self.Btab)
-            for i, (Q, tau) in enumerate(zip(Qs, taus)):
+            for i, (Qi, tau) in enumerate(zip(Q, taus)):
                 coefs[i] *= tau / m
-                _add_blocks(Q, Q, out, d, coefs[i])
+                _add_blocks(Qi, Qi, out, d, coefs[i])
 
     def _derivatives(self):
         """The nodal derivative matrices D_r = Minv_ref S_r (computed when first asked for)."""

@@ -160,6 +160,39 @@ class AderKernel(VolumeKernel):
         self._fn(x.ctypes.data, I.ctypes.data, R.ctypes.data, self._n, *self._const, float(dt), int(order))
 
 
+class TaylorKernel:
+    """The C ``taylor_values``: ``kernel(Q, X, cells, taus, order)`` writes ADER's cell-local
+    Taylor predictor from ``X`` (local values, ghosts included) at the times ``taus`` into the
+    rows of ``Q`` (len(taus), X.size), on the listed ``cells`` (owned or ghost), for a
+    cell-contiguous space; the cell data (Jinv, mat) cover every local cell."""
+
+    MAX_TIMES = 4  # (MAXT in volume.c)
+
+    def __init__(self, nb: int, nk: int, ncells: int, Jinv, mat, Btab, D0, D1):
+        self._fn = _function(nb, nk, "taylor_values", [_P, _N, _P, _N, _P, _P, _P, _P, _P, _P, _P, _N, _N])
+        _check("Taylor", [(Jinv, np.float64, None), (mat, np.int32, None), (Btab, np.float64, None),
+                          (D0, np.float64, (nb, nb)), (D1, np.float64, (nb, nb))])
+        ncells = int(ncells)
+        if Jinv.shape[0] < ncells or mat.shape[0] < ncells or Btab.shape[1:] != (11,) \
+                or (ncells and int(mat[:ncells].max()) >= Btab.shape[0]):
+            raise NativeError("the C Taylor kernel's cell data do not cover the local cells")
+        self._arrays = (Jinv, mat, Btab, D0, D1)  # (kept alive: the pointers below)
+        self._ncells, self._size = ncells, ncells * nb * 5
+        self._const = tuple(a.ctypes.data for a in self._arrays)
+
+    def __call__(self, Q, X, cells, taus, order):
+        taus = np.ascontiguousarray(taus, dtype=np.float64)
+        _check("Taylor", [(Q, np.float64, (taus.size, X.size)), (cells, np.int64, None)])
+        _check_values(Q.reshape(-1), X, self._size, "Taylor")
+        if taus.size > self.MAX_TIMES:
+            raise NativeError(f"the C Taylor kernel takes at most {self.MAX_TIMES} times; got {taus.size}")
+        if cells.size and (int(cells.max()) >= self._ncells or int(cells.min()) < 0):
+            raise NativeError("the C Taylor kernel got a cell outside the local cells")
+        self._fn(Q.ctypes.data, X.size, X.ctypes.data, cells.size, cells.ctypes.data, self._const[0],
+                 self._const[1], self._const[2], self._const[3], self._const[4], taus.ctypes.data, taus.size,
+                 int(order))
+
+
 def _check_values(out, X, size, name):
     for a in (out, X):
         if a.dtype != np.float64 or not a.flags.c_contiguous or a.size < size:

@@ -859,8 +859,8 @@ class Solver:
             # (R is clear after the last corrector, so begin() below adds to their share)
             self.update_ghosts(x)
 
-            def taylor(X, Qs, cells, taus):
-                mf.taylor_values(X, Qs, cells, taus, self.degree)
+            def taylor(X, Q, cells, taus):
+                mf.taylor_values(X, Q, cells, taus, self.degree)
 
             with self.read_local(x) as X:
                 states = [ext.ader_step(X, self.t, dt, mf.R, taylor) for ext in self.extensions]

@@ -346,6 +346,70 @@ void ader_corrector(double *restrict x, double *restrict I, double *restrict R, 
     }
 }
 
+/* ADER's cell-local Taylor predictor on listed cells (owned or ghost), in blocks of W cells:
+ * Q_i = sum_{m=0..order} tau_i^m/m! D^m x at the NT times tau_i into the step, D the cell-local
+ * strong-form operator of ader_corrector (D_r, Jinv, B^-1).  Q_i is at Q + i * stride; only the
+ * listed cells' blocks are written.  These are the traces the crack interfaces read inside a step
+ * (hydrofrac/interface.py, Interface.ader_step).  Per cell it is the m >= 1 part of the
+ * predictor above, for the listed cells only. */
+#define MAXT 4
+void taylor_values(double *restrict Q, long stride, const double *restrict X, long ncells,
+                   const long *restrict cells, const double *restrict Jinv, const int *restrict mat,
+                   const double *restrict Btab, const double *restrict D0, const double *restrict D1,
+                   const double *restrict taus, long ntimes, long order)
+{
+    for (long c0 = 0; c0 < ncells; c0 += W) {
+        const long w = ncells - c0 < W ? ncells - c0 : W;
+        double u[NB][5][W], g0[ROWS][5][W], g1[ROWS][5][W], q[MAXT][NB][5][W], jac[4][W], Bl[11][W];
+        long cl[W];
+        for (long l = 0; l < W; l++) {
+            const long c = cells[c0 + (l < w ? l : 0)];
+            cl[l] = c;
+            for (int j = 0; j < NB; j++)
+                for (int k = 0; k < 5; k++) u[j][k][l] = X[5 * (NB * c + j) + k];
+            for (int t = 0; t < 4; t++) jac[t][l] = Jinv[4 * c + t];
+            for (int t = 0; t < 11; t++) Bl[t][l] = Btab[11 * mat[c] + t];
+        }
+        for (long i = 0; i < ntimes; i++)
+            for (int j = 0; j < NB; j++)
+                for (int k = 0; k < 5; k++)
+                    for (long l = 0; l < W; l++) q[i][j][k][l] = u[j][k][l];
+        const double *j00 = jac[0], *j01 = jac[1], *j10 = jac[2], *j11 = jac[3];
+        double coef[MAXT];
+        for (long i = 0; i < ntimes; i++) coef[i] = 1.0;
+        for (long m = 1; m <= order; m++) {
+            derivatives(g0, g1, D0, D1, u);
+            for (long i = 0; i < ntimes; i++) coef[i] *= taus[i] / (double)m;
+            for (int a = 0; a < NB; a++) {
+                const int iv = ROWS == NB ? a : 0;
+                for (int l = 0; l < W; l++) {
+                    const double t0 = j00[l] * g0[iv][2][l] + j10[l] * g1[iv][2][l] + j01[l] * g0[iv][4][l]
+                                      + j11[l] * g1[iv][4][l];
+                    const double t1 = j00[l] * g0[iv][4][l] + j10[l] * g1[iv][4][l] + j01[l] * g0[iv][3][l]
+                                      + j11[l] * g1[iv][3][l];
+                    const double t2 = j00[l] * g0[iv][0][l] + j10[l] * g1[iv][0][l];
+                    const double t3 = j01[l] * g0[iv][1][l] + j11[l] * g1[iv][1][l];
+                    const double t4 = j01[l] * g0[iv][0][l] + j11[l] * g1[iv][0][l] + j00[l] * g0[iv][1][l]
+                                      + j10[l] * g1[iv][1][l];
+                    u[a][0][l] = Bl[0][l] * t0;
+                    u[a][1][l] = Bl[1][l] * t1;
+                    u[a][2][l] = Bl[2][l] * t2 + Bl[3][l] * t3 + Bl[4][l] * t4;
+                    u[a][3][l] = Bl[5][l] * t2 + Bl[6][l] * t3 + Bl[7][l] * t4;
+                    u[a][4][l] = Bl[8][l] * t2 + Bl[9][l] * t3 + Bl[10][l] * t4;
+                }
+            }
+            for (long i = 0; i < ntimes; i++)
+                for (int a = 0; a < NB; a++)
+                    for (int k = 0; k < 5; k++)
+                        for (long l = 0; l < W; l++) q[i][a][k][l] += coef[i] * u[a][k][l];
+        }
+        for (long i = 0; i < ntimes; i++)
+            for (long l = 0; l < w; l++)
+                for (int a = 0; a < NB; a++)
+                    for (int k = 0; k < 5; k++) Q[i * stride + 5 * (NB * cl[l] + a) + k] = q[i][a][k][l];
+    }
+}
+
 /* The kinetic and strain energy of X - X0 on the owned cells (X0: the uniform initial state, 5
  * values), in blocks of W cells: what the numba kernel cell_energies in hydrofrac/matfree.py
  * computes for a cell-contiguous space, 1/2 u^T M_c u with M_c = |det J| Mref kron B (B: rho for

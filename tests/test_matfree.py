@@ -331,3 +331,61 @@ def test_matrix_free_set_up_builds_only_what_it_uses():
             xl.array[:] += 1e4 * np.sin(np.arange(xl.array.size))
     assert np.allclose(s.energies(), a.energies(), rtol=1e-9, atol=0)
     assert min(s.energies()) > 0
+
+
+def _check_taylor_values(p, monkeypatch):
+    """ADER's Taylor values on a list of cells (the traces the crack interfaces read inside a
+    step), at two times: the C kernel (hydrofrac/volume.c, the predictor on listed cells, ghosts
+    included) and the numba path equal each other to round-off, and on the listed owned cells
+    both equal sum_m tau^m/m! D^m x built from the operator's own ``local_derivative``; the
+    blocks of cells not listed are left as they were.  The list's length is not a multiple of
+    the block size and, on 2 ranks, it holds ghost cells."""
+    data = mesh_data(MPI.COMM_WORLD, N=9)
+    out = {}
+    for kernels in ("numba", "c"):
+        monkeypatch.setenv("HYDROFRAC_KERNELS", kernels)
+        solver = problem(data, p, "matfree", scheme="ader")
+        mf = solver.matfree
+        random_rhs(solver)
+        solver.update_ghosts(solver.x)
+        nb, ncells, owned = mf.dofs.shape[1], mf.dofs.shape[0], mf.nowned
+        cells = np.arange(1, ncells, 3, dtype=np.int64)
+        taus = [0.37 * solver.dt, 1.1 * solver.dt]
+        with solver.read_local(solver.x) as X:
+            Q = np.full((2, X.size), np.pi)
+            mf.taylor_values(X, Q, cells, taus, p)
+        assert (mf._ctaylor is not None) == (kernels == "c")
+        # the series on the owned cells, term by term
+        x = solver.x.array_r.copy()
+        ref = [x.copy() for _ in taus]
+        term = x.copy()
+        for m in range(1, p + 1):
+            nxt = np.zeros_like(term)
+            mf.local_derivative(term, nxt)
+            term = nxt
+            for r, tau in zip(ref, taus):
+                r += tau ** m / math.factorial(m) * term
+        listed = np.zeros(ncells, dtype=bool)
+        listed[cells] = True
+        blocks = np.repeat(listed, 5 * nb)
+        assert np.all(Q[:, ~blocks] == np.pi)
+        own = blocks[:5 * nb * owned]
+        scale = np.abs(Q[:, blocks]).max()
+        for i in range(2):
+            np.testing.assert_allclose(Q[i, :5 * nb * owned][own], ref[i][own], rtol=0, atol=1e-12 * scale)
+            assert np.abs(Q[i, :5 * nb * owned][own] - x[own]).max() > 1e-6 * scale  # (the terms count)
+        out[kernels] = Q[:, blocks]
+    assert cells.size % 4 != 0 and (solver.comm.size == 1 or cells.max() >= owned)
+    np.testing.assert_allclose(out["c"], out["numba"], rtol=0, atol=1e-13 * np.abs(out["numba"]).max())
+
+
+@pytest.mark.parametrize("p", [1, 2, 3])
+def test_c_taylor_values_equal_the_series_of_the_local_derivative(p, monkeypatch):
+    _check_taylor_values(p, monkeypatch)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("p", [2, 3])
+def test_c_taylor_values_equal_the_series_of_the_local_derivative_on_2_ranks(p, monkeypatch):
+    """As the serial test, with ghost cells in the list (their values come from the halo)."""
+    _check_taylor_values(p, monkeypatch)
