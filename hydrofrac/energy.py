@@ -138,12 +138,8 @@ class EnergyAccount:
         self._bdiss_form = None if bdiss is None else compat.form(bdiss)
 
     def _local_energies(self):
-        """This rank's (kinetic, strain) sums (matrix-free): under ADER, those its corrector
-        computed in its pass over the new state (the same bits), else a pass over x."""
+        """This rank's (kinetic, strain) sums (matrix-free)."""
         s = self.solver
-        e = s.energies_of_last_corrector()
-        if e is not None:
-            return e
         with s.read_local(s.x) as X:
             return np.array(s.matfree.energies(X, s.state0))
 

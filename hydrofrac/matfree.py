@@ -718,7 +718,6 @@ class MatrixFreeOperator:
         self.kernels = native.backend() if self.contiguous else "numba"
         self._cvolume = self._cfacets = self._cader = self._cenergy = self._cdiss = None  # (ADER's when first used)
         self._ctaylor = None  # (when first used)
-        self.corrector_energies = None  # (ader_correct)
         if self.kernels == "c":
             nk = self.fnodes.shape[1]
             self._cvolume = native.VolumeKernel(nb, nk, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
@@ -731,7 +730,6 @@ class MatrixFreeOperator:
             # the energy budget's cell energies: the compliance per material, indexed as Btab
             ctab = np.zeros((self.Btab.shape[0], 11))
             ctab[self.mat[:self.nowned]] = _pack_blocks(self.Bmat[:self.nowned])
-            self._ctab = ctab  # (the ADER corrector's energies too)
             self._cenergy = native.EnergyKernel(nb, nk, self.nowned, self.Mref, self.absdet, self.mat, ctab)
             self._cdiss = native.DissipationKernel(nb, nk, self.dofs.shape[0], self.fcells, self.fcodes, self.normal,
                                                    self.length, self.fnodes, self.Mf, self.fown, self.Zd[cp],
@@ -822,26 +820,17 @@ class MatrixFreeOperator:
             self.R[:] = 0.0
         self.ader_correct(x, I, dt, order)
 
-    def ader_correct(self, x, I, dt, order, state0=None):
+    def ader_correct(self, x, I, dt, order):
         """x += M^{-1}(R + volume terms of I), ``R`` holding the facet fluxes of I from
         :meth:`begin` (the ADER corrector), then I = the predictor's integral from the new x
         over the next step of length dt (:meth:`ader_predictor`), in one compiled pass;
-        ``x``, ``I``: owned values.  With ``state0`` and the C kernels, the same pass leaves this
-        rank's (kinetic, strain) energy of the new x less ``state0`` in
-        :attr:`corrector_energies` (:meth:`energies`' sums, the same bits); else that is None."""
-        self.corrector_energies = None
+        ``x``, ``I``: owned values."""
         if self.kernels == "c":
             if self._cader is None:
                 nb, nk = self.dofs.shape[1], self.fnodes.shape[1]
                 self._cader = native.AderKernel(nb, nk, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
-                                                self.Minv_ref, self.mat, self.Btab, *self._derivatives(),
-                                                self.Mref, self.absdet, self._ctab)
-            if state0 is None:
-                self._cader(x, I, self.R, dt, order)
-            else:
-                e = np.zeros(2)
-                self._cader(x, I, self.R, dt, order, e, np.ascontiguousarray(state0, dtype=np.float64))
-                self.corrector_energies = e
+                                                self.Minv_ref, self.mat, self.Btab, *self._derivatives())
+            self._cader(x, I, self.R, dt, order)
         else:
             self._corrector(x, I, self.R, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
                             self.Minv_ref, self.mat, self.Btab, *self._derivatives(), float(dt), int(order))

@@ -142,36 +142,22 @@ class VolumeKernel:
 
 class AderKernel(VolumeKernel):
     """The C ``ader_corrector`` (ADER's corrector and next predictor), bound to the same
-    constant arrays as :class:`VolumeKernel` plus the nodal derivative matrices D0, D1, and
-    :class:`EnergyKernel`'s (Mref, absdet, Ctab) for the new state's energies:
-    ``kernel(x, I, R, dt, order, energy=None, X0=None)``; with ``energy`` (2,), also the
-    (kinetic, strain) energy of the new x less X0, as :class:`EnergyKernel` computes it."""
+    constant arrays as :class:`VolumeKernel` plus the nodal derivative matrices D0, D1:
+    ``kernel(x, I, R, dt, order)``."""
 
-    def __init__(self, nb: int, nk: int, n: int, S0, S1, Jinv, invdet, Minv_ref, mat, Btab, D0, D1, Mref, absdet,
-                 Ctab):
+    def __init__(self, nb: int, nk: int, n: int, S0, S1, Jinv, invdet, Minv_ref, mat, Btab, D0, D1):
         super().__init__(nb, nk, n, S0, S1, Jinv, invdet, Minv_ref, mat, Btab)
-        _check("ADER", [(D0, np.float64, (nb, nb)), (D1, np.float64, (nb, nb)), (Mref, np.float64, (nb, nb)),
-                        (absdet, np.float64, None), (Ctab, np.float64, (Btab.shape[0], 11))])
-        if absdet.shape[0] < self._n:
-            raise NativeError("the C ADER kernel's cell data do not cover the owned cells")
-        self._fn = _function(nb, nk, "ader_corrector", [_P, _P, _P, _N] + [_P] * 9 + [ctypes.c_double, _N]
-                             + [_P] * 5)
+        _check("ADER", [(D0, np.float64, (nb, nb)), (D1, np.float64, (nb, nb))])
+        self._fn = _function(nb, nk, "ader_corrector", [_P, _P, _P, _N] + [_P] * 9 + [ctypes.c_double, _N])
         self._arrays += (D0, D1)
         self._const = tuple(a.ctypes.data for a in self._arrays)
-        self._energy_arrays = (Mref, absdet, Ctab)  # (kept alive: the pointers below)
-        self._energy_const = tuple(a.ctypes.data for a in self._energy_arrays)
 
-    def __call__(self, x, I, R, dt, order, energy=None, X0=None):
+    def __call__(self, x, I, R, dt, order):
         _check("ADER", [(R, np.float64, self._Rshape)])
         _check_values(x, I, self._size, "ADER")
         if not I.flags.writeable:
             raise NativeError("the C ADER kernel's predictor array is read-only")
-        if energy is None:
-            extra = (None, None, None, None, None)
-        else:
-            _check("ADER", [(energy, np.float64, (2,)), (X0, np.float64, (5,))])
-            extra = (energy.ctypes.data, X0.ctypes.data) + self._energy_const
-        self._fn(x.ctypes.data, I.ctypes.data, R.ctypes.data, self._n, *self._const, float(dt), int(order), *extra)
+        self._fn(x.ctypes.data, I.ctypes.data, R.ctypes.data, self._n, *self._const, float(dt), int(order))
 
 
 class TaylorKernel:

@@ -873,7 +873,7 @@ class Solver:
         t0 = time.perf_counter()
         with I.localForm() as il:
             mf.begin(il.array_r, self.t, data=False)
-        mf.ader_correct(x.array, I.array, dt, self.degree, state0=self.state0)  # (and the new x's energies)
+        mf.ader_correct(x.array, I.array, dt, self.degree)
         self._ader_next = (x.stateGet(), dt)
         self.timers.add("bulk operator", time.perf_counter() - t0)
         for ext, z in zip(self.extensions, states):  # (timed as "state update")
@@ -883,16 +883,6 @@ class Solver:
         self.step_count += 1
 
     # ------------------------------------------------------------------ energy
-    def energies_of_last_corrector(self):
-        """This rank's (kinetic, strain) sums of x (2,), as ADER's last corrector computed them
-        in its pass over the new x, while x is still that state (its predictor is valid); else
-        None (another scheme, the numba kernels, x written since)."""
-        mf = self.matfree
-        if (mf is None or mf.corrector_energies is None or self._ader_next is None
-                or self._ader_next[0] != self.x.stateGet()):
-            return None
-        return mf.corrector_energies.copy()
-
     def energies(self):
         """(kinetic, strain) energy relative to the initial stress state [J/m]."""
         return self.account.energies()

@@ -259,75 +259,16 @@ double facet_dissipation(const double *restrict X, long nfacets, const long *res
 }
 #endif
 
-/* The energy sums of one block of cells c0 .. c0 + w - 1 (cell_energies below): per lane,
- * kin[l] and strain[l] += |det J| u^T (Mref kron B) u, u = X - X0 (an empty lane repeats the
- * block's first cell with weight 0).  energy_total halves the lanes' sums into out[0..1]. */
-static inline void energy_block(double kin[W], double strain[W], const double *restrict X,
-                                const double *restrict X0, long c0, long w, const double *restrict Mref,
-                                const double *restrict absdet, const int *restrict mat,
-                                const double *restrict Ctab)
-{
-    double u[NB][5][W], b[NB][5][W], wt[W];
-    for (long l = 0; l < W; l++) {
-        const long c = c0 + (l < w ? l : 0);
-        const double *B = Ctab + 11 * mat[c];
-        wt[l] = l < w ? absdet[c] : 0.0;
-        for (int j = 0; j < NB; j++) {
-            const double *x = X + 5 * (NB * c + j);
-            const double u0 = x[0] - X0[0], u1 = x[1] - X0[1], u2 = x[2] - X0[2], u3 = x[3] - X0[3],
-                         u4 = x[4] - X0[4];
-            u[j][0][l] = u0;
-            u[j][1][l] = u1;
-            u[j][2][l] = u2;
-            u[j][3][l] = u3;
-            u[j][4][l] = u4;
-            b[j][0][l] = B[0] * u0;
-            b[j][1][l] = B[1] * u1;
-            b[j][2][l] = B[2] * u2 + B[3] * u3 + B[4] * u4;
-            b[j][3][l] = B[5] * u2 + B[6] * u3 + B[7] * u4;
-            b[j][4][l] = B[8] * u2 + B[9] * u3 + B[10] * u4;
-        }
-    }
-    double ek[W] = {0}, es[W] = {0};
-    for (int a = 0; a < NB; a++)
-        for (int j = 0; j < NB; j++) {
-            const double m = Mref[a * NB + j];
-            for (long l = 0; l < W; l++) {
-                ek[l] += m * (b[a][0][l] * u[j][0][l] + b[a][1][l] * u[j][1][l]);
-                es[l] += m * (b[a][2][l] * u[j][2][l] + b[a][3][l] * u[j][3][l] + b[a][4][l] * u[j][4][l]);
-            }
-        }
-    for (long l = 0; l < W; l++) {
-        kin[l] += wt[l] * ek[l];
-        strain[l] += wt[l] * es[l];
-    }
-}
-
-static inline void energy_total(double *out, const double kin[W], const double strain[W])
-{
-    double k = 0.0, s = 0.0;
-    for (long l = 0; l < W; l++) {
-        k += kin[l];
-        s += strain[l];
-    }
-    out[0] = 0.5 * k;
-    out[1] = 0.5 * s;
-}
-
 /* ADER's corrector and next predictor, in blocks of W cells: what the numba kernel ader_corrector
  * in hydrofrac/matfree.py computes for a cell-contiguous space.  Per cell: x += M_c^{-1} (R[c] +
  * volume terms of I) (R[c] cleared), then I = sum_{k=0..order} dt^(k+1)/(k+1)! D^k x, D the
- * cell-local strong-form operator with the nodal derivative matrices D_r = Minv_ref S_r.  With
- * ``energy`` (else NULL), also the kinetic and strain energy of the new x less X0 into energy[0..1],
- * as cell_energies computes them. */
+ * cell-local strong-form operator with the nodal derivative matrices D_r = Minv_ref S_r. */
 void ader_corrector(double *restrict x, double *restrict I, double *restrict R, long ncells,
                     const double *restrict S0, const double *restrict S1, const double *restrict Jinv,
                     const double *restrict invdet, const double *restrict Minv, const int *restrict mat,
                     const double *restrict Btab, const double *restrict D0, const double *restrict D1, double dt,
-                    long order, double *restrict energy, const double *restrict X0, const double *restrict Mref,
-                    const double *restrict absdet, const double *restrict Ctab)
+                    long order)
 {
-    double kin[W] = {0}, strain[W] = {0};
     for (long c0 = 0; c0 < ncells; c0 += W) {
         const long w = ncells - c0 < W ? ncells - c0 : W;
         double u[NB][5][W], g0[ROWS][5][W], g1[ROWS][5][W], r[NB][5][W], acc[NB][5][W], jac[5][W], Bl[11][W];
@@ -398,15 +339,11 @@ void ader_corrector(double *restrict x, double *restrict I, double *restrict R, 
                         }
                     }
                 }
-            /* the new x's energies (cell_energies' sums, block for block, while the block is
-             * in cache: the energy budget's read of x after the step, the same bits) */
-            if (m == 0 && energy) energy_block(kin, strain, x, X0, c0, w, Mref, absdet, mat, Ctab);
         }
         for (long l = 0; l < w; l++)
             for (int a = 0; a < NB; a++)
                 for (int k = 0; k < 5; k++) I[5 * (NB * (c0 + l) + a) + k] = acc[a][k][l];
     }
-    if (energy) energy_total(energy, kin, strain);
 }
 
 /* ADER's cell-local Taylor predictor on listed cells (owned or ghost), in blocks of W cells:
@@ -485,7 +422,46 @@ void cell_energies(double *restrict out, const double *restrict X, const double 
     double kin[W] = {0}, strain[W] = {0};
     for (long c0 = 0; c0 < ncells; c0 += W) {
         const long w = ncells - c0 < W ? ncells - c0 : W;
-        energy_block(kin, strain, X, X0, c0, w, Mref, absdet, mat, Ctab);
+        double u[NB][5][W], b[NB][5][W], wt[W];
+        for (long l = 0; l < W; l++) {
+            const long c = c0 + (l < w ? l : 0);
+            const double *B = Ctab + 11 * mat[c];
+            wt[l] = l < w ? absdet[c] : 0.0;
+            for (int j = 0; j < NB; j++) {
+                const double *x = X + 5 * (NB * c + j);
+                const double u0 = x[0] - X0[0], u1 = x[1] - X0[1], u2 = x[2] - X0[2], u3 = x[3] - X0[3],
+                             u4 = x[4] - X0[4];
+                u[j][0][l] = u0;
+                u[j][1][l] = u1;
+                u[j][2][l] = u2;
+                u[j][3][l] = u3;
+                u[j][4][l] = u4;
+                b[j][0][l] = B[0] * u0;
+                b[j][1][l] = B[1] * u1;
+                b[j][2][l] = B[2] * u2 + B[3] * u3 + B[4] * u4;
+                b[j][3][l] = B[5] * u2 + B[6] * u3 + B[7] * u4;
+                b[j][4][l] = B[8] * u2 + B[9] * u3 + B[10] * u4;
+            }
+        }
+        double ek[W] = {0}, es[W] = {0};
+        for (int a = 0; a < NB; a++)
+            for (int j = 0; j < NB; j++) {
+                const double m = Mref[a * NB + j];
+                for (long l = 0; l < W; l++) {
+                    ek[l] += m * (b[a][0][l] * u[j][0][l] + b[a][1][l] * u[j][1][l]);
+                    es[l] += m * (b[a][2][l] * u[j][2][l] + b[a][3][l] * u[j][3][l] + b[a][4][l] * u[j][4][l]);
+                }
+            }
+        for (long l = 0; l < W; l++) {
+            kin[l] += wt[l] * ek[l];
+            strain[l] += wt[l] * es[l];
+        }
     }
-    energy_total(out, kin, strain);
+    double k = 0.0, s = 0.0;
+    for (long l = 0; l < W; l++) {
+        k += kin[l];
+        s += strain[l];
+    }
+    out[0] = 0.5 * k;
+    out[1] = 0.5 * s;
 }

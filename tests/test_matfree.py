@@ -389,38 +389,3 @@ def test_c_taylor_values_equal_the_series_of_the_local_derivative(p, monkeypatch
 def test_c_taylor_values_equal_the_series_of_the_local_derivative_on_2_ranks(p, monkeypatch):
     """As the serial test, with ghost cells in the list (their values come from the halo)."""
     _check_taylor_values(p, monkeypatch)
-
-
-@pytest.mark.parametrize("p", [1, 3])
-def test_ader_corrector_energies_are_the_energy_kernels_bit_for_bit(p):
-    _check_corrector_energies(p)
-
-
-@pytest.mark.mpi
-def test_ader_corrector_energies_are_the_energy_kernels_bit_for_bit_on_2_ranks():
-    """As the serial test, each rank's own sums."""
-    _check_corrector_energies(2)
-
-
-def _check_corrector_energies(p):
-    """ADER's C corrector leaves the kinetic and strain energy of the new state, computed in
-    its pass over the new x (hydrofrac/volume.c, ``energy_block``): the energy budget takes them
-    instead of a pass of its own.  They are the energy kernel's sums bit for bit, after each
-    step; once x is written otherwise, they are no longer offered (the budget reads x again)."""
-    data = mesh_data(MPI.COMM_WORLD, N=9)
-    solver = problem(data, p, "matfree", scheme="ader")
-    if solver.matfree.kernels != "c":
-        pytest.skip("the C kernels are off (HYDROFRAC_KERNELS=numba)")
-    random_rhs(solver)
-    assert solver.energies_of_last_corrector() is None  # (no step yet)
-    for _ in range(3):
-        solver.step()
-        fused = solver.energies_of_last_corrector()
-        assert fused is not None
-        with solver.read_local(solver.x) as X:
-            direct = np.array(solver.matfree.energies(X, solver.state0))
-        assert np.all(direct > 0) and np.array_equal(fused, direct)
-        assert solver.energies_of_last_corrector() is not None  # (a read keeps them)
-    with solver.x.localForm() as xl:
-        xl.array[:] *= 1.5
-    assert solver.energies_of_last_corrector() is None
