@@ -6,6 +6,8 @@ their Gauss points per Runge-Kutta stage.
   :func:`hydrofrac.riemann.combine_point` (the one implementation of the formulas);
   the flux corrections ``(s* - s).w + (v* - v).(tau n)`` of both sides integrated into a
   residual vector; the state rates (damage, opening, slip);
+* :func:`ader_interface_step`: ADER's stages of one step, with the states between them, in one
+  call (:meth:`hydrofrac.interface.Interface.ader_step`);
 * :func:`interface_targets`: the same targets stored per point (output, energy terms);
 * :func:`advance_state`: a stage's or step's state from its increment, admissible (the
   exact closing flow through the contact band, damage in [D_n, 1], the counted opening clip);
