@@ -176,6 +176,36 @@ def test_contact_opens_iff_pressure_beats_bonded_traction(excess, scheme):
             assert np.array_equal(iface.state[1], np.broadcast_to(floor, iface.state[1].shape))
 
 
+def test_ader_step_takes_each_stage_times_separation_law():
+    """ADER's crack stages run in one compiled call (kernels.ader_interface_step), which takes the
+    separation law's arrays once when every stage time gives the same arrays (the hydraulic law,
+    a scale in time) and per stage otherwise.  A law S(t) = ramp(t) S0 given both ways, as
+    (S0, 0, ramp(t)) with the same arrays and as (ramp(t) S0, 0, 1) with new arrays at each call,
+    gives the same run bit for bit: each stage reads its own time's S either way (with the
+    first stage's S at every stage the second run differs)."""
+    p = P0 * (1 + 2e-3)
+    runs = []
+    for fresh in (False, True):
+        solver, iface = confined_crack(p, scheme="ader")
+        nf, nq = iface.facets.size, iface.nq
+        S0 = np.zeros((nf, nq, 2))
+        S0[..., 0] = -p
+        cS = np.zeros((nf, nq))
+
+        def ramp(t):
+            return 1.0 + 2e3 * t  # (+13 % over the 67 us)
+        if fresh:
+            iface.set_separation_law(lambda t: (ramp(t) * S0, np.zeros((nf, nq)), 1.0))
+        else:
+            iface.set_separation_law(lambda t: (S0, cS, ramp(t)))
+        for _ in range(120):
+            solver.step()
+        runs.append((iface.state.copy(), solver.x.array_r.copy()))
+    assert np.array_equal(runs[0][0], runs[1][0]) and np.array_equal(runs[0][1], runs[1][1])
+    has = runs[0][0].shape[1] > 0
+    assert not has or runs[0][0][1].max() > 0  # (the crack opened: the law acted)
+
+
 def test_contact_separation_transition_continuous():
     """The opening rate at the contact state is a continuous function of the crack pressure
     p across the threshold p = -s_B^1 = p0: zero at and below it, positive above, its slope
