@@ -108,6 +108,7 @@ test-mpi: setup
 bench: setup
 	$(PY) scenarios/benchmark_bulk.py
 	$(MPIRUN) -n 2 $(PY) scenarios/benchmark_bulk.py
+	$(PY) scenarios/benchmark_interface.py
 	$(PY) -m hydrofrac.postprocess.study_contact_stability
 
 # the speed-against-accuracy studies (CSV + PNG in postprocess/results; ~10 min on 2 cores)

@@ -495,3 +495,19 @@ def test_time_split_counts_the_state_update_once(scheme, monkeypatch):
     t = solver.timers.t
     assert t["state update"] >= 0.05, t
     assert t.get("rk update", 0.0) < 0.025, t
+
+
+def test_interface_benchmark_runs(run_python, tmp_path):
+    """``scenarios/benchmark_interface.py --quick`` (in ``make bench``) runs and writes a row of
+    positive per-facet and per-cell times for p = 1, 2, 3 (a smoke test: the speeds themselves
+    are measured by the benchmark, not asserted)."""
+    run_python(["scenarios/benchmark_interface.py", "--quick", "--out", tmp_path], timeout=300)
+    import csv
+    with open(tmp_path / "interface_kernels_n1.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [int(r["p"]) for r in rows] == [1, 2, 3]
+    for r in rows:
+        assert int(r["crack_facets"]) > 0 and int(r["crack_cells"]) > 0
+        for key in ("stage_us_per_facet", "taylor_us_per_cell", "taylor_numba_us_per_cell", "ader_step_us_per_facet",
+                    "targets_us_per_facet"):
+            assert 0 < float(r[key]) < 1e4, (key, r[key])
