@@ -306,33 +306,24 @@ def _scatter(Rc, r, P, I, nowned, f, nq, nb, Ff):
     cell-major residual Rc[c, j, :] of the matrix-free operator if the cell is one of its first
     ``nowned`` (owned) cells, else into the dof-vector residual r.  Each residual value is read
     once and gets its Gauss points' terms in their order, the same sums as one point at a time."""
+    Rf = Rc.reshape(-1)  # (cell c's node j at 5 (nb c + j), as in the dof vector of a cell-contiguous space)
     for side in range(2):
         c = I[f, side]
         po = _W + nq + side * nq * nb
-        if c < nowned:
-            for j in range(nb):
-                r0, r1, r2, r3, r4 = Rc[c, j, 0], Rc[c, j, 1], Rc[c, j, 2], Rc[c, j, 3], Rc[c, j, 4]
-                for q in range(nq):
-                    a = P[f, po + q * nb + j]
-                    r0 += a * Ff[side, q, 0]
-                    r1 += a * Ff[side, q, 1]
-                    r2 += a * Ff[side, q, 2]
-                    r3 += a * Ff[side, q, 3]
-                    r4 += a * Ff[side, q, 4]
-                Rc[c, j, 0], Rc[c, j, 1], Rc[c, j, 2], Rc[c, j, 3], Rc[c, j, 4] = r0, r1, r2, r3, r4
-        else:
-            do = 2 + side * nb
-            for j in range(nb):
-                b = 5 * I[f, do + j]
-                r0, r1, r2, r3, r4 = r[b], r[b + 1], r[b + 2], r[b + 3], r[b + 4]
-                for q in range(nq):
-                    a = P[f, po + q * nb + j]
-                    r0 += a * Ff[side, q, 0]
-                    r1 += a * Ff[side, q, 1]
-                    r2 += a * Ff[side, q, 2]
-                    r3 += a * Ff[side, q, 3]
-                    r4 += a * Ff[side, q, 4]
-                r[b], r[b + 1], r[b + 2], r[b + 3], r[b + 4] = r0, r1, r2, r3, r4
+        do = 2 + side * nb
+        owned = c < nowned
+        out = Rf if owned else r
+        for j in range(nb):
+            b = 5 * (nb * c + j) if owned else 5 * I[f, do + j]
+            r0, r1, r2, r3, r4 = out[b], out[b + 1], out[b + 2], out[b + 3], out[b + 4]
+            for q in range(nq):
+                a = P[f, po + q * nb + j]
+                r0 += a * Ff[side, q, 0]
+                r1 += a * Ff[side, q, 1]
+                r2 += a * Ff[side, q, 2]
+                r3 += a * Ff[side, q, 3]
+                r4 += a * Ff[side, q, 4]
+            out[b], out[b + 1], out[b + 2], out[b + 3], out[b + 4] = r0, r1, r2, r3, r4
 
 
 @njit(exact=True)

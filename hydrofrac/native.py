@@ -18,6 +18,7 @@ together are safe.
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import functools
 import hashlib
@@ -49,6 +50,21 @@ def backend() -> str:
         raise ValueError(f"HYDROFRAC_KERNELS must be one of {', '.join(BACKENDS)}; got "
                          f"{os.environ['HYDROFRAC_KERNELS']!r}")
     return b
+
+
+@contextlib.contextmanager
+def using(name: str):
+    """``HYDROFRAC_KERNELS`` = ``name`` for the solvers made inside the block (a benchmark's
+    side-by-side runs of both kernel sets); the variable as it was after it."""
+    old = os.environ.get("HYDROFRAC_KERNELS")
+    os.environ["HYDROFRAC_KERNELS"] = name
+    try:
+        yield
+    finally:
+        if old is None:
+            del os.environ["HYDROFRAC_KERNELS"]
+        else:
+            os.environ["HYDROFRAC_KERNELS"] = old
 
 
 def _compiler():

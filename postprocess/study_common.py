@@ -22,6 +22,25 @@ def study_parser(doc):
     return parser
 
 
+def benchmark_parser(description):
+    """A benchmark script's ``--quick`` (small sizes) and ``--out`` (default
+    ``postprocess/results``, or ``results/benchmark_quick`` with ``--quick``: a quick run does not
+    overwrite the measured files); :func:`benchmark_dir` makes the folder."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--quick", action="store_true", help="small sizes (seconds)")
+    parser.add_argument("--out", default=None,
+                        help="output folder (default postprocess/results, or results/benchmark_quick with --quick)")
+    return parser
+
+
+def benchmark_dir(comm, args):
+    """The output folder of a :func:`benchmark_parser` run (made on rank 0)."""
+    out = Path(args.out or ("results/benchmark_quick" if args.quick else "postprocess/results"))
+    if comm.rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
 def cases(args, quick, full):
     """(key, N) for every size of a study: ``quick`` with ``--quick``, else ``full``
     (both ``{key: [N, ...]}``)."""

@@ -56,19 +56,17 @@
 # +
 from __future__ import annotations
 
-import argparse
-import contextlib
 import math
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
 
-from hydrofrac import ROCK, compat
+from hydrofrac import ROCK, compat, native
 from hydrofrac.postprocess.rundata import write_csv
-from hydrofrac.postprocess.study_common import log_axes, plane_wave_solver, save_figure
+from hydrofrac.postprocess.study_common import (benchmark_dir, benchmark_parser, log_axes, plane_wave_solver,
+                                                 save_figure)
 from hydrofrac.postprocess.study_work_precision import TRAVEL, state_pt
 from hydrofrac.postprocess.study_work_precision import state as plane_wave
 from hydrofrac.solver import LOW_STORAGE, TABLEAUX, Solver, default_cfl
@@ -241,20 +239,6 @@ def unit_square(comm, N):
     return compat.create_rectangle(comm, (0.0, 0.0), (1.0, 1.0), N, N)
 
 
-@contextlib.contextmanager
-def kernels(name):
-    """HYDROFRAC_KERNELS = ``name`` for the solvers made inside (hydrofrac/native.py)."""
-    old = os.environ.get("HYDROFRAC_KERNELS")
-    os.environ["HYDROFRAC_KERNELS"] = name
-    try:
-        yield
-    finally:
-        if old is None:
-            del os.environ["HYDROFRAC_KERNELS"]
-        else:
-            os.environ["HYDROFRAC_KERNELS"] = old
-
-
 def timed(comm, fn, count):
     comm.barrier()
     t0 = time.perf_counter()
@@ -398,16 +382,11 @@ def slopes(rows):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description="Throughput and work-precision benchmark of the bulk DG solver")
-    parser.add_argument("--quick", action="store_true", help="small meshes (seconds)")
-    parser.add_argument("--out", default=None,
-                        help="output folder (default postprocess/results, or results/benchmark_quick with --quick)")
+    parser = benchmark_parser("Throughput and work-precision benchmark of the bulk DG solver")
     parser.add_argument("--skip-work-precision", action="store_true", help="throughput and bandwidth only")
     args = parser.parse_args(argv)
     comm = MPI.COMM_WORLD
-    out = Path(args.out or ("results/benchmark_quick" if args.quick else "postprocess/results"))
-    if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
+    out = benchmark_dir(comm, args)
     tp_sizes = QUICK_THROUGHPUT if args.quick else THROUGHPUT
     wp_sizes = QUICK_WORK_PRECISION if args.quick else WORK_PRECISION
 
@@ -432,7 +411,7 @@ def main(argv=None):
                              "of the peak" if "flops_per_dof_stage" in r else ""))
             log(comm, f"[bench]           matrix-free / assembled step rate: {pair['matfree'] / pair['assembled']:.2f}")
             # the same matrix-free step with the numba kernels alone (the C kernels' gain, side by side)
-            with kernels("numba"):
+            with native.using("numba"):
                 r = throughput_case(comm, p, N, bandwidth, "matfree", mesh, peak)
             r["operator"] = "matfree numba"
             rows.append(r)

@@ -28,18 +28,15 @@
 # +
 from __future__ import annotations
 
-import argparse
-import contextlib
-import os
 import time
-from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
 
-from hydrofrac import ROCK, compat
+from hydrofrac import ROCK, compat, native
 from hydrofrac.interface import Crack, Interface, crack_facet_indices
 from hydrofrac.postprocess.rundata import write_csv
+from hydrofrac.postprocess.study_common import benchmark_dir, benchmark_parser
 from hydrofrac.solver import Solver
 
 CRACK = 10
@@ -49,20 +46,6 @@ SIZES = {"quick": 24, "full": 72}
 def log(comm, *args):
     if comm.rank == 0:
         print(*args, flush=True)
-
-
-@contextlib.contextmanager
-def kernels(name):
-    """HYDROFRAC_KERNELS = ``name`` for the solvers made inside (hydrofrac/native.py)."""
-    old = os.environ.get("HYDROFRAC_KERNELS")
-    os.environ["HYDROFRAC_KERNELS"] = name
-    try:
-        yield
-    finally:
-        if old is None:
-            del os.environ["HYDROFRAC_KERNELS"]
-        else:
-            os.environ["HYDROFRAC_KERNELS"] = old
 
 
 def plate(comm, n):
@@ -113,7 +96,7 @@ def best(fn, repeats=5, calls=50):
 def case(comm, n, p):
     """The four measurements at degree p on the n x n plate (this rank's facets and cells)."""
     row = {"ranks": comm.size, "p": p, "n": n}
-    with kernels("numba"):
+    with native.using("numba"):
         numba_solver, numba_iface = cracked_solver(comm, n, p)
     solver, iface = cracked_solver(comm, n, p)
     mf = solver.matfree
@@ -149,15 +132,9 @@ def case(comm, n, p):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description="Speed of the crack interface's kernels (per facet, per cell)")
-    parser.add_argument("--quick", action="store_true", help="a small plate (seconds)")
-    parser.add_argument("--out", default=None,
-                        help="output folder (default postprocess/results, or results/benchmark_quick with --quick)")
-    args = parser.parse_args(argv)
+    args = benchmark_parser("Speed of the crack interface's kernels (per facet, per cell)").parse_args(argv)
     comm = MPI.COMM_WORLD
-    out = Path(args.out or ("results/benchmark_quick" if args.quick else "postprocess/results"))
-    if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
+    out = benchmark_dir(comm, args)
     n = SIZES["quick" if args.quick else "full"]
     rows = []
     for p in (1, 2, 3):
