@@ -17,6 +17,7 @@ contributions to ghost cells are sent to their owners by a reverse scatter.
 from __future__ import annotations
 
 import time
+from collections import namedtuple
 from dataclasses import dataclass, replace
 from typing import Callable, Dict, Optional, Sequence
 
@@ -183,6 +184,12 @@ def crack_facet_indices(mesh, facet_tags, cracks: Sequence[Crack]):
         raise ValueError(f"{bad} crack facet(s) lie on the domain boundary; crack polylines must be interior "
                          "(end them inside the domain)")
     return np.unique(idx).astype(np.int32)
+
+
+#: what ADER's interface step keeps while dt does not change (:meth:`Interface.ader_step`): the
+#: crack cells, the facet records with each stage's weights, the stage times with c > 0, their
+#: Taylor values (rows of Q), each stage's row of Q (-1: the state itself) and the scheme (A, b)
+AderData = namedtuple("AderData", "dt cells PW times Q rows A b")
 
 
 class Interface:
@@ -547,22 +554,22 @@ class Interface:
         (:func:`hydrofrac.kernels.ader_interface_step`), after the Taylor values."""
         t0 = time.perf_counter()
         c, A, b = self.ADER_STAGES[min(self.solver.degree, 3)]
-        if self._ader is None or self._ader[0] != dt:
+        if self._ader is None or self._ader.dt != dt:
             P = self._facets.P
             PW = np.empty((len(b),) + P.shape)
             for k, bk in enumerate(b):
                 PW[k] = P
                 PW[k, :, kernels.WEIGHTS:kernels.WEIGHTS + self.nq] *= dt * bk
             times = sorted({ck for ck in c if ck})
-            Q = self._ader[4] if self._ader is not None else None
+            Q = self._ader.Q if self._ader is not None else None
             if Q is None or Q.shape != (len(times), X.size):
                 Q = np.zeros((len(times), X.size))  # (rows: the stage times' traces; other blocks unused)
             rows = np.array([times.index(ck) if ck else -1 for ck in c], dtype=np.int64)
             Am = np.zeros((len(b), len(b)))
             for k, Ak in enumerate(A):
                 Am[k, :len(Ak)] = Ak
-            self._ader = (dt, np.unique(self.cells.reshape(-1)).astype(np.int64), PW, times, Q, rows, Am,
-                          np.array(b, dtype=float))
+            self._ader = AderData(dt, np.unique(self.cells.reshape(-1)).astype(np.int64), PW, times, Q, rows, Am,
+                                  np.array(b, dtype=float))
         _, cells, PW, times, Q, rows, Am, bv = self._ader
         taylor(X, Q, cells, [ck * dt for ck in times])  # (each stage time's traces)
         laws = [self._separation(t + ck * dt) for ck in c]

@@ -111,7 +111,7 @@ def case(comm, n, p):
         iface.stage_state = iface.state.copy()
         t_stage = best(lambda: iface._stage(X, 0.0, R, R.shape[0]))
         iface.ader_step(X, 0.0, dt, R, taylor)  # (its cells and Taylor arrays)
-        cells, times, Q = iface._ader[1], iface._ader[3], iface._ader[4]
+        cells, times, Q = iface._ader.cells, iface._ader.times, iface._ader.Q
         taus = [c * dt for c in times]
         t_taylor = best(lambda: mf.taylor_values(X, Q, cells, taus, p))
         t_step = best(lambda: iface.ader_step(X, 0.0, dt, R, taylor))
