@@ -195,7 +195,8 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
     # divide them by: this rank's owned cell*stages and crack facet*stages, step by step (the
     # mesh changes as cracks grow)
     timed = {"remeshes": 0, "cell_stages": 0, "facet_stages": 0}
-    counted = [None, 0, 0]  # (solver, owned cells, crack facets) of this rank, once per mesh
+    # (solver, owned cells, crack facets of this rank, DOF*stages and stages a step), once per mesh
+    counted = [None, 0, 0, 0, 0]
 
     def geometry():
         return remesh.checkpoint_state() if remesh is not None and hasattr(remesh, "checkpoint_state") else ""
@@ -299,14 +300,17 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
                 solver.check_stability()
             finally:
                 solver.dt = dt_full
-            loop["work"] += solver.num_dofs * solver.num_stages
             if counted[0] is not solver:
-                counted[:] = [solver, *unit_counts(solver)]
-            timed["cell_stages"] += counted[1] * solver.num_stages
-            timed["facet_stages"] += counted[2] * solver.num_stages
+                counted[:] = [solver, *unit_counts(solver), solver.num_dofs * solver.num_stages, solver.num_stages]
+            loop["work"] += counted[3]
+            timed["cell_stages"] += counted[1] * counted[4]
+            timed["facet_stages"] += counted[2] * counted[4]
             problem.after_step()
-            for m in monitors:
-                m(problem)
+            if monitors:
+                t0 = time.perf_counter()
+                for m in monitors:
+                    m(problem)
+                solver.timers.add("monitors", time.perf_counter() - t0)
             if remesh is not None:
                 t0 = time.perf_counter()
                 try:

@@ -138,7 +138,7 @@ def wall_time_parts(summary: dict) -> List[Tuple[str, float]]:
     """Where a run's wall time went, from its summary: (part, seconds) for each entry of the
     time split (the largest rank's) but the set-up, which is outside the wall time; a remesh's
     parts (``remeshing.split_per_remesh_s`` times the remeshes) in place of "remesh" where the
-    summary has them; and what no timer covers (the loop, monitors, history), the wall time
+    summary has them; and what no timer covers (the loop, the fallback state, history), the wall time
     less the rest.  Largest first; the parts add up to the wall time unless the ranks' largest
     parts overlap by more than that remainder (it is then 0)."""
     split = dict(summary.get("time_split_s", {}))

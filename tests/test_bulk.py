@@ -373,6 +373,25 @@ def test_a_checkpoint_by_wall_time_is_taken_at_a_clock_reading(tmp_path, monkeyp
     assert saved == readings + [steps]  # (and the save at the end)
 
 
+def test_the_time_split_holds_the_monitors(tmp_path):
+    """A scenario's monitors run every step inside the wall time; the time split gives them
+    their own part ("monitors"), so the split's parts account for them.  Here a monitor that
+    sleeps 4 ms a step over 12 steps: the part holds at least those 48 ms, within the wall
+    time."""
+    import time as _time
+    from hydrofrac.run import Monitor
+    out, solver = _small_run(tmp_path / "monitors")
+
+    class Sleepy(Monitor):
+        def __call__(self, problem):
+            _time.sleep(0.004)
+
+    s = run(solver, RunOptions(t_end=12 * solver.dt, out=str(out), frames=1, progress_wall=1e9),
+            monitors=[Sleepy()])
+    split = s["time_split_s"]
+    assert 12 * 0.004 <= split["monitors"] <= s["wall_time_s"], split
+
+
 def test_the_time_loop_writes_its_history_rows_without_a_collective_each(tmp_path, monkeypatch):
     """Rank 0 writes a history row every step; whether it could is read with its clock every
     CLOCK_EVERY steps (one broadcast), not gathered from every rank at every row. A row rank 0
