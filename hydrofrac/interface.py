@@ -544,8 +544,7 @@ class Interface:
     def ader_step(self, X, t, dt, R, taylor):
         """ADER (the solver's scheme "ader"): add the time integral over [t, t + dt] of the crack
         facets' flux to the cell residual ``R`` of the owned cells, and to the dof-vector residual
-        for ghost cells (:meth:`start_finish` sends it, :meth:`fold_received` adds it), and return
-        the state at t + dt.
+        for ghost cells (:meth:`fold_received` completes it), and return the state at t + dt.
         The stages are :data:`ADER_STAGES`' for the solver's degree: stage k reads the cells'
         Taylor predictor at t + c_k dt (``taylor(X, Q, cells, taus)`` for all the stage times at once,
         :meth:`hydrofrac.matfree.MatrixFreeOperator.taylor_values`; ``X`` itself, the local
@@ -589,12 +588,11 @@ class Interface:
 
     def fold_received(self, R):
         """ADER: the contributions to owned cells that other ranks computed (the reverse exchange
-        of the dof-vector residual that :meth:`start_finish` began), added to the cell residual
-        ``R``; the residual cleared."""
+        of the dof-vector residual), added to the cell residual ``R``; the residual cleared."""
         if not self._ghost_flux:
             return
         t0 = time.perf_counter()
-        self._r.ghostUpdateEnd(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self._r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         self.solver.timers.add("halo exchange", time.perf_counter() - t0)
         with self._r.localForm() as rl:
             r = rl.array

@@ -846,11 +846,7 @@ class Solver:
         (x's PETSc state counter: any write through ``x.array`` or a local form invalidates it;
         :meth:`read_local` reads keep it).  Crack interfaces first add their flux integrated over
         the step to the corrector's residual (:meth:`~hydrofrac.interface.Interface.ader_step`),
-        and take their new state after it.  On several ranks I's ghosts travel while the
-        interfaces work, and the interfaces' share for other ranks' cells while the facet
-        fluxes are computed: a rank waits for the others only where their work in all is
-        larger, not where one phase of theirs is (docs/benchmarks.md, "Halo exchanges
-        overlapped in ADER's step")."""
+        and take their new state after it."""
         t0 = time.perf_counter()
         mf, dt, x = self.matfree, self.dt, self.x
         I, _ = self._work
@@ -859,37 +855,27 @@ class Solver:
         mf.integrate_boundary_data(self.t, dt, (self.degree + 2) // 2)
         self.timers.add("rk update", time.perf_counter() - t0)
         states = []
-        if self.extensions:
-            self.update_ghosts(x)  # (current since the last step's end, unless x was written)
-        multi = self.comm.size > 1
-        if multi:  # I's ghosts travel while the crack interfaces work (its own scatter context)
-            t0 = time.perf_counter()
-            I.ghostUpdateBegin(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-            self.timers.add("halo exchange", time.perf_counter() - t0)
         if self.extensions:  # crack interfaces: their flux integrals into R before the facets'
             # (R is clear after the last corrector, so begin() below adds to their share)
+            self.update_ghosts(x)
 
             def taylor(X, Q, cells, taus):
                 mf.taylor_values(X, Q, cells, taus, self.degree)
 
             with self.read_local(x) as X:
                 states = [ext.ader_step(X, self.t, dt, mf.R, taylor) for ext in self.extensions]
-            for ext in self.extensions:  # their ghost cells' share travels during the facet pass
-                ext.start_finish()
-        if multi:
+            for ext in self.extensions:
+                ext.fold_received(mf.R)
+        if self.comm.size > 1:
             t0 = time.perf_counter()
-            I.ghostUpdateEnd(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            I.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
             self.timers.add("halo exchange", time.perf_counter() - t0)
         t0 = time.perf_counter()
         with I.localForm() as il:
             mf.begin(il.array_r, self.t, data=False)
-        bulk = time.perf_counter() - t0
-        for ext in self.extensions:  # (the other ranks' share for owned cells, then cleared)
-            ext.fold_received(mf.R)
-        t0 = time.perf_counter()
         mf.ader_correct(x.array, I.array, dt, self.degree)
         self._ader_next = (x.stateGet(), dt)
-        self.timers.add("bulk operator", bulk + time.perf_counter() - t0)
+        self.timers.add("bulk operator", time.perf_counter() - t0)
         for ext, z in zip(self.extensions, states):  # (timed as "state update")
             ext.state = z
             ext.end_step(x, self.t + dt, dt)
