@@ -709,6 +709,16 @@ class Interface:
         frac = rm.mode_fractions(T["D"], T["eta"], T["gamma"])
         return np.argmax(frac, axis=1).reshape(self.facets.size, self.nq).astype(np.int32)
 
+    def separated(self):
+        """Whether separation is the dominant mode at every Gauss point (nf, nq) of the last
+        evaluated state: ``modes() == MODE_SEPARATED`` (its fraction D (1 - eta) above each of
+        the other three, which win ties), without the four fractions' array and its argmax
+        (a monitor asks every step)."""
+        T = self.last
+        D, eta, gamma = T["D"], T["eta"], T["gamma"]
+        sep, De = D * (1 - eta), D * eta  # (the products of riemann.mode_fractions, in its order)
+        return ((sep > 1 - D) & (sep > De * gamma) & (sep > De * (1 - gamma))).reshape(self.facets.size, self.nq)
+
     def part(self, extra: Optional[Dict[str, np.ndarray]] = None):
         """Line-mesh output part: per facet the points [a, q_1..q_nq, b] joined by
         segments, point data at the Gauss points (ends copy the nearest point)."""

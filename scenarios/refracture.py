@@ -35,7 +35,7 @@ from mpi4py import MPI
 from hydrofrac import CONFINEMENT, cli, wellbore
 from hydrofrac.boundary import PiecewiseLinear
 from hydrofrac.hydraulics import network_distance
-from hydrofrac.interface import MODE_SEPARATED, DamageParams
+from hydrofrac.interface import DamageParams
 from hydrofrac.meshes.fractures import Domain, Perforation
 from hydrofrac.run import Monitor, RunOptions
 from hydrofrac.run import run as run_problem
@@ -162,7 +162,7 @@ class RefractureMonitor(Monitor):
         # (one reduction a step) the network's separated, closed and whole length; closed: at or
         # past contact, delta <= 0 up to round-off (1e-9 delta~: a face that never opened has
         # delta = 0, and the last bits of a sum must not move it out of contact)
-        sums = np.array([float(((iface.modes() == MODE_SEPARATED) * net).sum()),
+        sums = np.array([float((iface.separated() * net).sum()),
                          float(((iface.state[1] <= 1e-9 * iface.delta_scale[:, None]) * net).sum()),
                          float(net.sum())])
         sep, closed, tot = (float(x) for x in comm.allreduce(sums, op=MPI.SUM))

@@ -511,3 +511,25 @@ def test_interface_benchmark_runs(run_python, tmp_path):
         for key in ("stage_us_per_facet", "taylor_us_per_cell", "taylor_numba_us_per_cell", "ader_step_us_per_facet",
                     "targets_us_per_facet"):
             assert 0 < float(r[key]) < 1e4, (key, r[key])
+
+
+def test_separated_is_where_separation_is_the_dominant_mode():
+    """``Interface.separated`` (the re-fracture's monitor asks it every step) is ``modes() ==
+    MODE_SEPARATED`` at every Gauss point: on states with each mode dominant and on exact ties,
+    which go to the mode listed first (bonded 1 - D against separation D (1 - eta) at D = 1/2,
+    eta = 0; slip against separation at eta = 1/2, gamma = 0)."""
+    from hydrofrac.interface import MODE_SEPARATED
+    tb = load_scenario("two_bars")
+    iface = tb.setup(degree=1, nx=8).interface
+    n = iface.facets.size * iface.nq
+    rng = np.random.default_rng(3)
+    cases = [rng.random((3, n)), np.tile([[0.5], [0.0], [1.0]], (1, n)), np.tile([[1.0], [0.5], [0.0]], (1, n)),
+             np.tile([[1.0], [0.25], [0.0]], (1, n)), np.tile([[0.0], [0.0], [0.0]], (1, n)),
+             np.tile([[1.0], [1.0], [1.0]], (1, n))]
+    seen = set()
+    for D, eta, gamma in cases:
+        iface.last = {"D": D, "eta": eta, "gamma": np.round(gamma)}
+        expect = iface.modes() == MODE_SEPARATED
+        assert np.array_equal(iface.separated(), expect)
+        seen.update(np.unique(iface.modes()).tolist())
+    assert seen == {0, 1, 2, 3}  # every mode dominant somewhere
