@@ -165,11 +165,13 @@ class RefractureMonitor(Monitor):
         sums = np.array([float((iface.separated() * net).sum()),
                          float(((iface.state[1] <= 1e-9 * iface.delta_scale[:, None]) * net).sum()),
                          float(net.sum())])
-        sep, closed, tot = (float(x) for x in comm.allreduce(sums, op=MPI.SUM))
+        comm.Allreduce(MPI.IN_PLACE, sums, op=MPI.SUM)  # (a buffer: no pickling, a step)
+        sep, closed, tot = sums.tolist()
         self.sep_fraction.append((t, sep / max(tot, 1e-300), closed / max(tot, 1e-300)))
         if t >= self.t_off:
             self.energy_after_off.append((t, problem.solver.energy.balance_error))
-            loaded = hyd.fp_q.mean(axis=1) > 0.5
+            # each facet's mean f_p (ndarray.mean's sum and division, without its overhead)
+            loaded = hyd.fp_q.sum(axis=1) / iface.nq > 0.5
             if t < self.t_on:
                 self.loaded_before_on = loaded
                 return
