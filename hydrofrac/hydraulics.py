@@ -537,16 +537,17 @@ class Hydraulics:
         fluid volume V(t) [m², inf without a volume]) (global)."""
         w, loaded = self.iface.weights, self.loaded[:, None]
         loc = np.array([(np.maximum(self.iface.state[1], 0.0) * w * loaded).sum(), (self.wet_q * w * loaded).sum()])
-        vol, wet = self.comm.allreduce(loc, op=MPI.SUM)
+        self.comm.Allreduce(MPI.IN_PLACE, loc, op=MPI.SUM)  # (a buffer: no pickling)
+        vol, wet = loc
         v = self.params.volume
         return float(vol), float(wet), (float(v(self.iface.solver.t)) if v is not None else float("inf"))
 
     def loaded_length(self):
         """Length of the loaded network weighted by f_p, and total network length [m] (global)."""
         w = self.iface.weights
-        lf = float((self.fp_q * w).sum())
-        ln = float((self.network[:, None] * w).sum())
-        return self.comm.allreduce(lf, op=MPI.SUM), self.comm.allreduce(ln, op=MPI.SUM)
+        both = np.array([(self.fp_q * w).sum(), (self.network[:, None] * w).sum()])
+        self.comm.Allreduce(MPI.IN_PLACE, both, op=MPI.SUM)  # (one reduction, a buffer)
+        return float(both[0]), float(both[1])
 
 
 def end_distances(edges_vertices, lengths, active, source, index=None):
