@@ -223,12 +223,13 @@ class Charts:
         ax.set_xlabel("wall time [s] (the largest rank's, per part)")
         err = s.get("energy", {}).get("balance_error_relative")
         rate = s.get("dof_stages_per_s")
-        title = f"where the wall time went: {wall:.1f} s on {s.get('ranks', '?')} rank(s)"
+        # (at font size 11 the first line ran past the right edge of the figure)
+        lines = [f"where the wall time went: {wall:.1f} s on {s.get('ranks', '?')} rank(s)"]
         if rate:
-            title += f", {rate:.3g} DOF·stages/s"
+            lines[0] += f", {rate:.3g} DOF·stages/s"
         if err is not None:
-            title += f"\nenergy balance error {abs(err):.2g} of the energy put in"
-        ax.set_title(title, fontsize=11)
+            lines.append(f"energy balance error {abs(err):.2g} of the energy put in")
+        ax.set_title("\n".join(lines), fontsize=10)
         ax.tick_params(axis="y", labelsize=8)
         ax.grid(alpha=0.3, axis="x")
 
