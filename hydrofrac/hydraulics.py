@@ -532,6 +532,12 @@ class Hydraulics:
             out["wet"] = self.wet_q * out["loaded"]
         return out
 
+    def facet_fp(self):
+        """Each crack facet's mean pressure factor f_p over its Gauss points (nf,): the row sums
+        over n_q, as ``fp_q.mean(axis=1)`` computes them, without its overhead (monitors ask
+        every step)."""
+        return self.fp_q.sum(axis=1) / self.iface.nq
+
     def fluid(self):
         """(volume of the loaded network's apertures ∫ max(δ, 0) ds [m²], wet length [m],
         fluid volume V(t) [m², inf without a volume]) (global)."""

@@ -170,8 +170,8 @@ class IntersectionMonitor(Monitor):
         local[3] = float((hyd.fp_q[nf] * iface.weights[nf]).sum())
         local[4] = float((hyd.network[:, None] * iface.weights).sum())
         local[5] = float(iface.weights[nf].sum())
-        if m["ends"]:  # each facet's mean f_p (ndarray.mean's sum and division, without its overhead)
-            fp = hyd.fp_q.sum(axis=1) / iface.nq if iface.facets.size else np.zeros(0)
+        if m["ends"]:
+            fp = hyd.facet_fp()
             for k, (half, branch) in enumerate(m["ends"]):
                 local[6 + 3 * k:9 + 3 * k] = ((fp[half] <= 0.5).sum(), (fp[branch] > 0.5).sum(), half.sum())
         rows = np.empty((comm.size, local.size))

@@ -170,8 +170,7 @@ class RefractureMonitor(Monitor):
         self.sep_fraction.append((t, sep / max(tot, 1e-300), closed / max(tot, 1e-300)))
         if t >= self.t_off:
             self.energy_after_off.append((t, problem.solver.energy.balance_error))
-            # each facet's mean f_p (ndarray.mean's sum and division, without its overhead)
-            loaded = hyd.fp_q.sum(axis=1) / iface.nq > 0.5
+            loaded = hyd.facet_fp() > 0.5
             if t < self.t_on:
                 self.loaded_before_on = loaded
                 return

@@ -256,6 +256,12 @@ def test_the_compiled_update_has_the_bits_of_the_numpy_formulas(nq):
                 np.testing.assert_array_equal(out[2], fp * wq)
     S0, cS = rm.hydraulic_law(fp, loaded)
     np.testing.assert_array_equal(cS, -(loaded[:, None] * 1.0) * (1.0 - fp))
+    # each facet's mean f_p, which the monitors read every step: ndarray.mean's bits
+    from types import SimpleNamespace
+    from hydrofrac.hydraulics import Hydraulics
+    fp_q = rng.random((m, nq))
+    hyd = SimpleNamespace(fp_q=fp_q, iface=SimpleNamespace(nq=nq))
+    np.testing.assert_array_equal(Hydraulics.facet_fp(hyd), fp_q.mean(axis=1))
 
 
 # --------------------------------------------------------------------------- bad input
