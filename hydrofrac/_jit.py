@@ -117,6 +117,40 @@ SOURCES = [Path(__file__).parent]
 use_keyed_cache(*SOURCES)
 
 
+#: seconds this process spent compiling kernels: numba's compiles (not its cache loads) and the
+#: C library's (:mod:`hydrofrac.native`); a run reports what fell inside its time loop
+_COMPILED = {"s": 0.0}
+
+
+def compile_seconds() -> float:
+    """Seconds this process has spent compiling kernels so far."""
+    return _COMPILED["s"]
+
+
+def add_compile_seconds(seconds: float) -> None:
+    _COMPILED["s"] += seconds
+
+
+if HAVE_NUMBA:
+    from numba.core import event as _event
+
+    class _CompileClock(_event.Listener):
+        """Times numba's compiles, once for a kernel and the functions compiled within it."""
+        depth, t0 = 0, 0.0
+
+        def on_start(self, event):
+            if self.depth == 0:
+                self.t0 = time.perf_counter()
+            self.depth += 1
+
+        def on_end(self, event):
+            self.depth -= 1
+            if self.depth == 0:
+                add_compile_seconds(time.perf_counter() - self.t0)
+
+    _event.register("numba:compile", _CompileClock())
+
+
 #: floating-point flags of the compiled kernels: reassociation and FMA contraction let
 #: LLVM vectorise the small dense loops; NaN and Inf keep their IEEE meaning (no
 #: "nnan"/"ninf"), so a blow-up still shows as NaN in the energy check.

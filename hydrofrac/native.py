@@ -25,11 +25,12 @@ import hashlib
 import os
 import platform
 import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
 
-from ._jit import cache_root
+from ._jit import add_compile_seconds, cache_root
 
 #: the kernel sets ``HYDROFRAC_KERNELS`` may name
 BACKENDS = ("c", "numba")
@@ -98,7 +99,9 @@ def _library(defines: tuple) -> ctypes.CDLL:
     if not lib.exists():
         tmp = lib.with_name(f"{lib.name}.{platform.node()}.{os.getpid()}.tmp")  # (a cache shared by hosts)
         cmd = [_compiler(), *flags, str(_SOURCE), "-o", str(tmp)]
+        t0 = time.perf_counter()
         res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+        add_compile_seconds(time.perf_counter() - t0)
         if res.returncode != 0:
             tmp.unlink(missing_ok=True)
             raise NativeError(f"compiling {_SOURCE.name} failed ({' '.join(cmd)}):\n{res.stderr.strip()}\n"

@@ -23,6 +23,7 @@ from typing import Dict, Mapping, Optional, Sequence
 
 import numpy as np
 
+from ._jit import compile_seconds
 from .checkpoint import Checkpoint, CheckpointError, dumps, loads
 from .io import VTKSeries
 from .output import FrameSchedule, History
@@ -278,6 +279,7 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
     before_last = None  # the state before a shortened last step: where a longer run continues
     retired = []  # replaced problems that before_last still holds
     wall0 = time.perf_counter()
+    compiled0 = compile_seconds()  # (kernels compiled at their first use inside the loop: the summary says how long)
     last_progress = last_ckpt = wall0
     step0 = solver.step_count
     estimated = False
@@ -388,6 +390,7 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
         close()
         raise BlowUpError(msg) from None
     wall = time.perf_counter() - wall0
+    compiling = compile_seconds() - compiled0
     loop["finished_at"] = t_end
     if before_last is None:
         save()
@@ -406,7 +409,8 @@ def run(problem, options: RunOptions, name: str = "solution", monitors: Sequence
                             {"paraview": str(series.pvd_path), "history": str(history_path),
                              "checkpoint": str(ckpt.dir),
                              **({"probes": str(out / "probes.csv")} if probes is not None else {})},
-                            remeshes_timed=timed["remeshes"], unit_work=(timed["cell_stages"], timed["facet_stages"]))
+                            remeshes_timed=timed["remeshes"], unit_work=(timed["cell_stages"], timed["facet_stages"]),
+                            compiling=compiling)
     write_summary(summary, out, comm)
     for m in monitors:
         line = m.report(accuracy)

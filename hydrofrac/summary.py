@@ -12,18 +12,22 @@ from . import compat, native
 
 
 def build_summary(problem, name: str, wall: float, work: float, steps_run: int, remesh_info, accuracy: Dict,
-                  outputs: Dict, unit_work, remeshes_timed: Optional[int] = None) -> Dict:
+                  outputs: Dict, unit_work, remeshes_timed: Optional[int] = None, compiling: float = 0.0) -> Dict:
     """The summary dictionary (collective: the time split and unit costs are reduced).
     ``remesh_info``: the run's remeshes; ``remeshes_timed``: those of this process (after a
     restart, the ones the timers saw; default all), the per-remesh times' divisor;
     ``unit_work``: this rank's (owned cell*stages, crack facet*stages) of the steps timed,
-    counted step by step on the meshes the run went through."""
+    counted step by step on the meshes the run went through; ``compiling``: this rank's seconds
+    of the wall time spent compiling kernels at their first use (:func:`hydrofrac._jit.compile_seconds`),
+    in the parts of the time split that first called them."""
     solver, comm = problem.solver, problem.comm
     summary = problem.summary()
     summary.update({
         "scenario": name,
         "wall_time_s": wall,
         "setup_time_s": solver.timers.t.get("setup", 0.0),
+        # (a first run after an edit of hydrofrac/ or on a fresh machine; later runs load the kernels)
+        "compiling_in_wall_s": comm.allreduce(float(compiling), op=compat.MPI.MAX),
         "dof_stages_per_s": work / wall if wall > 0 else float("nan"),
         "dof_stages_per_s_per_rank": work / wall / comm.size if wall > 0 else float("nan"),
         "energy": solver.energy.as_dict(),
@@ -101,7 +105,9 @@ def print_summary(s: Dict, file=sys.stdout):
         f"  time        {s['steps']} steps of dt = {s['dt']:.4g} s ({s['scheme']}, CFL {s['cfl']:.3g}) "
         f"to t = {s['simulated_time']:.6g} s",
         f"  speed       wall {s['wall_time_s']:.2f} s (+ setup {s['setup_time_s']:.2f} s), "
-        f"{s['dof_stages_per_s']:.3g} DOF*stages/s ({s['dof_stages_per_s_per_rank']:.3g} per rank)",
+        f"{s['dof_stages_per_s']:.3g} DOF*stages/s ({s['dof_stages_per_s_per_rank']:.3g} per rank)"
+        + (f"; {s['compiling_in_wall_s']:.2f} s of the wall time compiled kernels at their first use "
+           f"(a second run loads them)" if s.get("compiling_in_wall_s", 0.0) >= 0.01 else ""),
         f"  energy      kinetic {e['kinetic']:.5g}, strain {e['strain']:.5g}, work in {e['work_in']:.5g}, "
         f"radiated {e['radiated']:.5g}, dissipated (flux {e['dissipated_flux']:.4g}, friction "
         f"{e['dissipated_friction']:.4g}, damage {e['dissipated_damage']:.4g}) J/m",

@@ -229,6 +229,8 @@ class Charts:
             lines[0] += f", {rate:.3g} DOF·stages/s"
         if err is not None:
             lines.append(f"energy balance error {abs(err):.2g} of the energy put in")
+        if s.get("compiling_in_wall_s", 0.0) >= 0.1:  # (within the parts that first called the kernels)
+            lines.append(f"{s['compiling_in_wall_s']:.1f} s of it compiled kernels at their first use")
         ax.set_title("\n".join(lines), fontsize=10)
         ax.tick_params(axis="y", labelsize=8)
         ax.grid(alpha=0.3, axis="x")
