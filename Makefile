@@ -31,7 +31,7 @@ TEST_TIMEOUT ?= 1800
 TEST_TIMEOUT_MPI ?= 900
 PYTEST_FLAGS ?=
 
-.PHONY: help setup apt-packages demo gallery test test-serial test-mpi bench studies devito-env
+.PHONY: help setup apt-packages demo gallery test test-serial test-mpi bench ab-refracture studies devito-env
 
 help:
 	@sed -n '3,7p' Makefile | sed 's/^# *//'
@@ -110,6 +110,19 @@ bench: setup
 	$(MPIRUN) -n 2 $(PY) scenarios/benchmark_bulk.py
 	$(PY) scenarios/benchmark_interface.py
 	$(PY) -m hydrofrac.postprocess.study_contact_stability
+
+# issue 19's re-fracture to 10 ms as it was posed, side by side with the code then (ab93a21,
+# from a worktree of its own) on 2 ranks, alternating: that code's scene (an unlimited fluid
+# supply, tips stopped 2.9 m from the centre, no branching, microcracks or tip-speed cap) under
+# rk4 and ADER; AB_ROUNDS rounds (~3.5 min each here).  docs/benchmarks.md, "A/B against an
+# earlier revision"; postprocess/ab.py does any such series
+AB_ROUNDS ?= 2
+AS_FILED := --pump-rate inf --growth-max-radius 2.9 --growth-branch-speed inf --growth-nucleation-cap 0 \
+            --growth-max-speed inf
+ab-refracture: setup
+	$(PY) -m hydrofrac.postprocess.ab scenarios/refracture.py --base ab93a21 --ranks 2 --rounds $(AB_ROUNDS) \
+	  --mpirun "$(MPIRUN)" --args "--frames 40" --variant "rk4=$(AS_FILED) --scheme rk4" \
+	  --variant "ader=$(AS_FILED) --scheme ader" --out results/ab_refracture
 
 # the speed-against-accuracy studies (CSV + PNG in postprocess/results; ~10 min on 2 cores)
 studies: setup
