@@ -14,9 +14,10 @@ arguments first, so that numba's and the C kernels' compiles stay out of the ser
 
 Every variant (``LABEL=ARGS``, default one, ``head``, with no arguments) runs this tree with
 ``--args`` and its own arguments; the base runs the revision with ``--args`` and
-``--base-args``.  Writes ``ab.csv`` (one row per run: the summary's speed, work and remeshing,
-and its scalar ``accuracy`` entries) and ``ab.md`` (per variant: its wall times, the base's
-wall time over its own in each round, and each accuracy entry against the base's) into
+``--base-args``.  Writes ``ab.csv`` (one row per run: the summary's speed, work, remeshing, time split
+and scalar ``accuracy`` entries) and ``ab.md`` (per variant: its wall times, the base's wall
+time over its own in each round, each part of the time split with the same ratio, and each
+accuracy entry against the base's) into
 ``--out``; each run's output folder is kept under it.
 """
 from __future__ import annotations
@@ -122,12 +123,16 @@ def run_one(code, script, args, out, ranks, python, mpirun):
 
 
 def row(summary):
-    """The CSV row of a run's summary: :data:`COLUMNS`, the remeshing, the scalar accuracy entries."""
+    """The CSV row of a run's summary: :data:`COLUMNS`, the remeshing, the stepping (the wall time
+    less the remeshing), the time split's parts and the scalar accuracy entries."""
     out = {k: summary.get(k, "") for k in COLUMNS}
     rem = summary.get("remeshing") or {}
     out["remeshes"] = rem.get("remeshes", "")
     out["remeshing_s"] = rem.get("wall_s", "")
     out["remeshing_share"] = rem.get("share", "")
+    out["time.stepping (wall - remeshing)"] = summary["wall_time_s"] - (rem.get("wall_s") or 0.0)
+    for k, v in (summary.get("time_split_s") or {}).items():
+        out["time." + k] = v
     for k, v in (summary.get("accuracy") or {}).items():
         if isinstance(v, (int, float)) and not isinstance(v, bool):
             out["accuracy." + k] = v
@@ -175,6 +180,21 @@ def report(rows, base_label="base"):
                      f"{_span([r['dof_stages_per_s'] for r in rs])} | {_span([r['steps'] for r in rs])} | "
                      f"{_span([r['remeshes'] for r in rs]) if rs[0]['remeshes'] != '' else '—'}"
                      f"{' (' + _span([round(100 * s) for s in share]) + ' %)' if share else ''} |")
+    parts = sorted({k for r in rows for k in r if k.startswith("time.")}, key=lambda k: -by[(base_label, rounds[0])].get(k, 0.0))
+    if parts:
+        lines += ["", "| time split [s] (base / this, round by round) | " + " | ".join(labels) + " |",
+                  "|---" * (len(labels) + 1) + "|"]
+        for k in parts:
+            cells = []
+            for lab in labels:
+                rs = [j for j in rounds if (lab, j) in by and by[(lab, j)].get(k, "") != ""]
+                cell = _span([by[(lab, j)][k] for j in rs]) if rs else "—"
+                if lab != base_label and rs:
+                    ratios = [by[(base_label, j)][k] / by[(lab, j)][k] for j in rs
+                              if by.get((base_label, j), {}).get(k, "") != "" and by[(lab, j)][k] > 0]
+                    cell += f" ({_span([round(x, 2) for x in ratios])}×)" if ratios else ""
+                cells.append(cell)
+            lines.append(f"| {k[len('time.'):]} | " + " | ".join(cells) + " |")
     keys = sorted({k for r in rows for k in r if k.startswith("accuracy.")})
     if keys:
         lines += ["", "| accuracy | " + " | ".join(labels) + " |", "|---" * (len(labels) + 1) + "|"]
