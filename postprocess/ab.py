@@ -113,12 +113,15 @@ def run_one(code, script, args, out, ranks, python, mpirun):
     its summary (raises with the log's tail if it failed)."""
     cmd = ([] if ranks == 1 else shlex.split(mpirun) + ["-n", str(ranks)]) + [python, script, *args, "--out", str(out)]
     log = Path(str(out) + ".log")
+    shutil.rmtree(out, ignore_errors=True)  # (a summary left by an earlier series must not pass for this run's)
     with open(log, "w") as f:
         r = subprocess.run(cmd, cwd=code, env=environment(code), stdout=f, stderr=subprocess.STDOUT)
     summary = Path(out) / "summary.json"
     if r.returncode or not summary.exists():
         tail = log.read_text()[-1500:]
-        raise RuntimeError(f"{' '.join(cmd)} (in {code}) failed with exit {r.returncode}; its log {log} ends:\n{tail}")
+        written = "written" if summary.exists() else "missing"
+        raise RuntimeError(f"{' '.join(cmd)} (in {code}) failed (exit {r.returncode}, summary {written}); "
+                           f"its log {log} ends:\n{tail}")
     return json.loads(summary.read_text())
 
 
@@ -161,9 +164,10 @@ def _against(pairs):
 
 
 def report(rows, base_label="base"):
-    """The Markdown table of the series: per label its wall times and work, and the base's wall
-    time over its own in each round (the speed-up, round by round); then each accuracy entry
-    of each label against the base's (equal, or the largest relative difference)."""
+    """The Markdown tables of the series: per label its wall times and work, with the base's wall
+    time over its own in each round (the speed-up, round by round); each part of the time split
+    (and the stepping) with the same ratios; each accuracy entry the base writes, of each label
+    against the base's (equal, or the largest relative difference); the entries it does not."""
     labels = list(dict.fromkeys(r["label"] for r in rows))
     rounds = sorted({r["round"] for r in rows})
     by = {(r["label"], r["round"]): r for r in rows}
@@ -196,6 +200,9 @@ def report(rows, base_label="base"):
                 cells.append(cell)
             lines.append(f"| {k[len('time.'):]} | " + " | ".join(cells) + " |")
     keys = sorted({k for r in rows for k in r if k.startswith("accuracy.")})
+    base_keys = {k for r in rows if r["label"] == base_label for k in r if r[k] != ""}
+    only = [k for k in keys if k not in base_keys]
+    keys = [k for k in keys if k in base_keys]
     if keys:
         lines += ["", "| accuracy | " + " | ".join(labels) + " |", "|---" * (len(labels) + 1) + "|"]
         for k in keys:
@@ -209,6 +216,8 @@ def report(rows, base_label="base"):
                     cell += " " + _against(pairs)
                 cells.append(cell)
             lines.append(f"| {k[len('accuracy.'):]} | " + " | ".join(cells) + " |")
+    if only:
+        lines += ["", "Accuracy entries the base does not write: " + ", ".join(k[len("accuracy."):] for k in only) + "."]
     return "\n".join(lines) + "\n"
 
 

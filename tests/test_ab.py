@@ -63,3 +63,13 @@ def test_bad_input_is_refused_before_any_run(argv, message, tmp_path, capsys):
     assert e.value.code == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_run_without_a_summary_is_refused_not_taken_from_an_earlier_series(tmp_path):
+    """A run that writes no summary (here ``--help``, which exits 0) raises with its log's tail,
+    even where an earlier series left a summary in its output folder."""
+    out = tmp_path / "base_1"
+    out.mkdir()
+    (out / "summary.json").write_text('{"wall_time_s": 1.0}')
+    with pytest.raises(RuntimeError, match="exit 0, summary missing"):
+        ab.run_one(ab.ROOT, "scenarios/two_bars.py", ["--help"], out, 1, sys.executable, "mpirun")
