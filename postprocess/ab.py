@@ -14,7 +14,8 @@ arguments first, so that numba's and the C kernels' compiles stay out of the ser
 
 Every variant (``LABEL=ARGS``, default one, ``head``, with no arguments) runs this tree with
 ``--args`` and its own arguments; the base runs the revision with ``--args`` and
-``--base-args``.  Writes ``ab.csv`` (one row per run: the summary's speed, work, remeshing, time split
+``--base-args``.  Writes ``ab.png`` (each run's wall time as stepping and remeshing, round
+by round, with the ratios), ``ab.csv`` (one row per run: the summary's speed, work, remeshing, time split
 and scalar ``accuracy`` entries) and ``ab.md`` (per variant: its wall times, the base's wall
 time over its own in each round, each part of the time split with the same ratio, and each
 accuracy entry against the base's) into
@@ -309,11 +310,47 @@ def main(argv=None):
         header = (f"{args.script}, {args.ranks} rank(s), {args.rounds} round(s); base {args.base} ({commit[:10]}) "
                   f"with `{' '.join(runs[0][2])}`; " + "; ".join(f"{lab} with `{' '.join(a)}`" for lab, _, a in runs[1:]))
         (out / "ab.md").write_text(header + "\n\n" + table)
+        chart(rows, out / "ab.png", title=f"{args.script}: {args.ranks} rank(s), base {args.base}")
         print(header + "\n\n" + table, flush=True)
     finally:
         remove_worktree(where)
         shutil.rmtree(where.parent, ignore_errors=True)
     return rows
+
+
+def chart(rows, path, title=""):
+    """``path`` (PNG): each run's wall time as a bar of its stepping and its remeshing, the runs
+    of a round side by side, each labelled with the base's wall time over its own."""
+    from hydrofrac.postprocess.charts import pyplot
+    plt = pyplot()
+    labels = list(dict.fromkeys(r["label"] for r in rows))
+    rounds = sorted({r["round"] for r in rows})
+    by = {(r["label"], r["round"]): r for r in rows}
+    fig, ax = plt.subplots(figsize=(1.6 + 1.1 * len(labels) * len(rounds), 4.0))
+    width = 0.8 / len(labels)
+    for i, lab in enumerate(labels):
+        xs, step, rem, speed = [], [], [], []
+        for k in rounds:
+            r = by.get((lab, k))
+            if r is None:
+                continue
+            xs.append(k + (i - (len(labels) - 1) / 2) * width)
+            rem.append(r["remeshing_s"] or 0.0)
+            step.append(r["wall_time_s"] - rem[-1])
+            b = by.get(("base", k))
+            speed.append("" if lab == "base" or b is None else f"{b['wall_time_s'] / r['wall_time_s']:.2f}×")
+        bars = ax.bar(xs, step, width * 0.92, label=f"{lab}: stepping", color=f"C{i}")
+        ax.bar(xs, rem, width * 0.92, bottom=step, label=f"{lab}: remeshing", color=f"C{i}", alpha=0.45, hatch="//")
+        for bar, s, r_ in zip(bars, speed, rem):
+            if s:
+                ax.text(bar.get_x() + bar.get_width() / 2, bar.get_height() + r_, s, ha="center", va="bottom", fontsize=8)
+    ax.set_xticks(rounds, [f"round {k}" for k in rounds])
+    ax.set_ylabel("wall time [s]")
+    ax.set_title(title + "\n(the base's wall time over each run's, within its round)", fontsize=9)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def _write(out, rows):

@@ -50,7 +50,8 @@ ENERGY_TERMS = (("kinetic", "kinetic", "C0"), ("strain", "strain", "C1"), ("radi
 MODE_COLOURS = {"bonded": "#9e9e9e", "stick": "#2c7bb6", "slip": "#fdae61", "separated": "#d7191c"}
 
 
-def _pyplot():
+def pyplot():
+    """matplotlib.pyplot with the Agg backend (files only, no display)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -241,7 +242,7 @@ class Charts:
               "opening": ("draw_opening", "draw_penetration"), "wall_time": ("draw_wall_time",)}
 
     def save(self, out: Path, dpi: int = 110) -> List[Path]:
-        plt = _pyplot()
+        plt = pyplot()
         out.mkdir(parents=True, exist_ok=True)
         written = []
         for name, methods in self.SINGLE.items():

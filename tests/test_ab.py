@@ -47,6 +47,7 @@ def test_a_series_alternates_the_codes_and_compares_their_results(tmp_path):
     speed = table.split("\n\n")[1]  # (the first table: wall times and the rounds' ratios)
     assert speed.count("×") == 2  # the variant's two rounds
     assert "| stepping (wall - remeshing) |" in table and "| bulk operator |" in table
+    assert (tmp_path / "ab.png").stat().st_size > 10_000
     assert (tmp_path / "base_1" / "summary.json").exists() and (tmp_path / "again_2" / "summary.json").exists()
 
 
