@@ -206,6 +206,30 @@ def test_ader_step_takes_each_stage_times_separation_law():
     assert not has or runs[0][0][1].max() > 0  # (the crack opened: the law acted)
 
 
+def test_ader_stage_combinations_are_the_array_sums_bit_for_bit():
+    """ADER's crack stages combine their rates in place (kernels._combine: a flat loop a term):
+    the same bits as the array expressions sum_j (dt a_j) r_j in their order, zero coefficients
+    skipped, zero where there is none, over rates of every magnitude."""
+    from hydrofrac import kernels
+    rng = np.random.default_rng(3)
+
+    def reference(dt, coefs, rates, n):
+        out, first = None, True
+        for j in range(n):
+            if coefs[j] != 0.0:
+                term = (dt * coefs[j]) * rates[j]
+                out, first = (term, False) if first else (out + term, False)
+        return np.zeros(rates.shape[1:]) if first else out
+    for nf, nq in ((1, 1), (13, 3), (200, 4)):
+        rates = rng.standard_normal((4, 4, nf, nq)) * 10.0 ** rng.integers(-9, 9, (4, 4, nf, nq))
+        for coefs in ([0.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.25, 0.25, 0.0, 0.0], [0.0, 0.5, 0.0, 0.0],
+                      [1 / 6, 1 / 6, 2 / 3, 0.0], [1 / 6, 1 / 3, 1 / 3, 1 / 6]):
+            for n in range(5):
+                out = np.full((4, nf, nq), np.nan)
+                kernels._combine(out, 4.7e-7, np.array(coefs), rates, n)
+                assert np.array_equal(out, reference(4.7e-7, coefs, rates, n)), (nf, coefs, n)
+
+
 def test_contact_separation_transition_continuous():
     """The opening rate at the contact state is a continuous function of the crack pressure
     p across the threshold p = -s_B^1 = p0: zero at and below it, positive above, its slope
