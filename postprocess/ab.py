@@ -38,6 +38,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("hydrofrac", "hydrofrac.forms", "hydrofrac.meshes", "hydrofrac.postprocess")
 #: the summary's entries a row gives (missing in an old summary: empty)
+#: the label of the earlier revision's runs
+BASE = "base"
 COLUMNS = ("wall_time_s", "steps", "dt", "cells", "dofs", "scheme", "dof_stages_per_s",
            "compiling_in_wall_s")
 
@@ -164,14 +166,18 @@ def _against(pairs):
     return f"(Δ {rel:.1e})"
 
 
-def report(rows, base_label="base"):
+def _series(rows):
+    """(labels in order of appearance, rounds, {(label, round): row}) of a series' rows."""
+    return (list(dict.fromkeys(r["label"] for r in rows)), sorted({r["round"] for r in rows}),
+            {(r["label"], r["round"]): r for r in rows})
+
+
+def report(rows, base_label=BASE):
     """The Markdown tables of the series: per label its wall times and work, with the base's wall
     time over its own in each round (the speed-up, round by round); each part of the time split
     (and the stepping) with the same ratios; each accuracy entry the base writes, of each label
     against the base's (equal, or the largest relative difference); the entries it does not."""
-    labels = list(dict.fromkeys(r["label"] for r in rows))
-    rounds = sorted({r["round"] for r in rows})
-    by = {(r["label"], r["round"]): r for r in rows}
+    labels, rounds, by = _series(rows)
     lines = ["| | wall [s] | base / this, round by round | DOF·stages/s | steps | remeshes (share) |",
              "|---|---|---|---|---|---|"]
     for lab in labels:
@@ -226,8 +232,8 @@ def parse_variants(items):
     out = []
     for item in items or ["head="]:
         label, sep, args = item.partition("=")
-        if not sep or not label or label == "base":
-            raise Error(f"--variant {item!r}: give LABEL=ARGS with a label other than 'base' (ARGS may be empty)")
+        if not sep or not label or label == BASE:
+            raise Error(f"--variant {item!r}: give LABEL=ARGS with a label other than {BASE!r} (ARGS may be empty)")
         out.append((label, shlex.split(args)))
     if len({lab for lab, _ in out}) != len(out):
         raise Error("--variant labels must differ")
@@ -286,14 +292,14 @@ def main(argv=None):
             worktree(commit, where)
             if not (where / args.script).is_file():
                 raise Error(f"the base {args.base} ({commit[:10]}) has no {args.script}")
-            files = {"base": check_imports(where, sys.executable), "head": check_imports(ROOT, sys.executable)}
+            files = {BASE: check_imports(where, sys.executable), "head": check_imports(ROOT, sys.executable)}
         except Error as e:
             p.error(str(e))
         print(f"[ab] base {args.base} = {commit[:10]} in {where}; this tree {ROOT}", flush=True)
         for name, f in files.items():
             print(f"[ab]   {name} imports hydrofrac from {Path(f['hydrofrac']).parent}", flush=True)
         common = shlex.split(args.args)
-        runs = [("base", where, common + shlex.split(args.base_args))] + [(lab, ROOT, common + a) for lab, a in variants]
+        runs = [(BASE, where, common + shlex.split(args.base_args))] + [(lab, ROOT, common + a) for lab, a in variants]
         if args.warmup != "none":  # (each run's own arguments, so that its scheme's kernels are compiled)
             for label, code, a in runs:
                 print(f"[ab] warm-up of {label}: {' '.join(a + shlex.split(args.warmup))}", flush=True)
@@ -318,14 +324,12 @@ def main(argv=None):
     return rows
 
 
-def chart(rows, path, title=""):
+def chart(rows, path, title="", base_label=BASE):
     """``path`` (PNG): each run's wall time as a bar of its stepping and its remeshing, the runs
     of a round side by side, each labelled with the base's wall time over its own."""
     from hydrofrac.postprocess.charts import pyplot
     plt = pyplot()
-    labels = list(dict.fromkeys(r["label"] for r in rows))
-    rounds = sorted({r["round"] for r in rows})
-    by = {(r["label"], r["round"]): r for r in rows}
+    labels, rounds, by = _series(rows)
     fig, ax = plt.subplots(figsize=(1.6 + 1.1 * len(labels) * len(rounds), 4.0))
     width = 0.8 / len(labels)
     for i, lab in enumerate(labels):
@@ -337,8 +341,8 @@ def chart(rows, path, title=""):
             xs.append(k + (i - (len(labels) - 1) / 2) * width)
             rem.append(r["remeshing_s"] or 0.0)
             step.append(r["wall_time_s"] - rem[-1])
-            b = by.get(("base", k))
-            speed.append("" if lab == "base" or b is None else f"{b['wall_time_s'] / r['wall_time_s']:.2f}×")
+            b = by.get((base_label, k))
+            speed.append("" if lab == base_label or b is None else f"{b['wall_time_s'] / r['wall_time_s']:.2f}×")
         bars = ax.bar(xs, step, width * 0.92, label=f"{lab}: stepping", color=f"C{i}")
         ax.bar(xs, rem, width * 0.92, bottom=step, label=f"{lab}: remeshing", color=f"C{i}", alpha=0.45, hatch="//")
         for bar, s, r_ in zip(bars, speed, rem):
