@@ -599,6 +599,37 @@ class ReferenceData(NamedTuple):
     Mf: np.ndarray
     Mref: np.ndarray
     Mref_inv: np.ndarray
+    chain: np.ndarray
+
+
+def _lattice(k):
+    """The equispaced points of degree k on the reference triangle ((k+1)(k+2)/2, 2): a
+    unisolvent set for P_k (the centroid at k = 0)."""
+    if k == 0:
+        return np.array([[1.0 / 3.0, 1.0 / 3.0]])
+    return np.array([[i / k, j / k] for j in range(k + 1) for i in range(k + 1 - j)])
+
+
+def taylor_chain(ref):
+    """ADER's predictor in the degrees its terms have (the C ``ader_corrector``).  D lowers the
+    degree by one, so D^m x lies in P_{p-m} and its values at the (p-m)-lattice
+    (:func:`_lattice`) determine it.  Per m = 1..p, flattened in this order: the reference
+    derivative matrices from the values D^{m-1} x is held by (m = 1: the P_p nodes; then the
+    (p-m+1)-lattice) to the (p-m)-lattice, (n_{p-m}, n_{p-m+1}) each, and the interpolation
+    of (p-m)-lattice values at the P_p nodes, (n_p, n_{p-m}).  The nodal derivative matrices
+    ``Minv_ref S_r`` are the m = 1 matrices taken at the nodes instead, so each term is the
+    nodal predictor's, to round-off, at n_{p-m}/n_p of its rows (docs/benchmarks.md, "ADER's
+    predictor in the degrees it has")."""
+    from .element import ReferenceElement
+    p = ref.degree
+    prev, parts = ref, []
+    for m in range(1, p + 1):
+        L = _lattice(p - m)
+        g = prev.tabulate_grad(L)
+        basis = ReferenceElement(L, p - m)
+        parts += [g[:, :, 0], g[:, :, 1], basis.tabulate(ref.nodes)]
+        prev = basis
+    return np.ascontiguousarray(np.concatenate([a.ravel() for a in parts]) if parts else np.zeros(0))
 
 
 #: :func:`reference_data` of each element met so far (degree, nodes): a remesh's new solver
@@ -634,7 +665,7 @@ def reference_data(ref) -> ReferenceData:
     fnodes, Mf = facet_nodes(ref, tables, qw)
     Mref = ref.mass()
     data = ReferenceData(S0, S1, qw, tables, fnodes, Mf, np.ascontiguousarray(Mref),
-                         np.ascontiguousarray(np.linalg.inv(Mref)))
+                         np.ascontiguousarray(np.linalg.inv(Mref)), taylor_chain(ref))
     _REFERENCE[key] = data
     return data
 
@@ -652,6 +683,7 @@ class MatrixFreeOperator:
         self.nowned = compat.num_cells_local(mesh)
         r = reference_data(ref)
         self.S0, self.S1, self.qw, self.tables, self.fnodes, self.Mf = r.S0, r.S1, r.qw, r.tables, r.fnodes, r.Mf
+        self.chain = r.chain
         self.Jinv = np.ascontiguousarray(g.Jinv)
         self.absdet = np.ascontiguousarray(np.abs(g.detJ))
         self.Minv_ref = np.ascontiguousarray(solver.Mref_inv, dtype=float)
@@ -829,7 +861,7 @@ class MatrixFreeOperator:
             if self._cader is None:
                 nb, nk = self.dofs.shape[1], self.fnodes.shape[1]
                 self._cader = native.AderKernel(nb, nk, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
-                                                self.Minv_ref, self.mat, self.Btab, *self._derivatives())
+                                                self.Minv_ref, self.mat, self.Btab, self.chain)
             self._cader(x, I, self.R, dt, order)
         else:
             self._corrector(x, I, self.R, self.dofs, self.nowned, self.S0, self.S1, self.Jinv, self.invdet,
@@ -849,7 +881,7 @@ class MatrixFreeOperator:
         if self.kernels == "c":
             if self._ctaylor is None:
                 self._ctaylor = native.TaylorKernel(self.dofs.shape[1], self.fnodes.shape[1], self.dofs.shape[0],
-                                                    self.Jinv, self.mat, self.Btab, *self._derivatives())
+                                                    self.Jinv, self.mat, self.Btab, self.chain)
             self._ctaylor(Q, x, cells, taus, order)
             return
         key = id(cells)

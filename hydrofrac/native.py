@@ -134,6 +134,14 @@ def _function(nb, nk, name, argtypes):
 _P, _N = ctypes.c_void_p, ctypes.c_long
 
 
+def _chain_size(nb, nk):
+    """The length of :func:`hydrofrac.matfree.taylor_chain` at degree nk - 1."""
+    def dim(k):
+        return (k + 1) * (k + 2) // 2
+    p = nk - 1
+    return sum(2 * dim(p - m) * dim(p - m + 1) + nb * dim(p - m) for m in range(1, p + 1))
+
+
 class VolumeKernel:
     """The C ``volume_and_inverse`` for ``nb`` basis functions per cell (``nk`` per facet)
     and ``n`` owned cells, bound to one operator's constant arrays: ``kernel(out, R, X)``
@@ -161,14 +169,14 @@ class VolumeKernel:
 
 class AderKernel(VolumeKernel):
     """The C ``ader_corrector`` (ADER's corrector and next predictor), bound to the same
-    constant arrays as :class:`VolumeKernel` plus the nodal derivative matrices D0, D1:
-    ``kernel(x, I, R, dt, order)``."""
+    constant arrays as :class:`VolumeKernel` plus the predictor's matrices in the degrees its
+    terms have (``chain``: :func:`hydrofrac.matfree.taylor_chain`): ``kernel(x, I, R, dt, order)``."""
 
-    def __init__(self, nb: int, nk: int, n: int, S0, S1, Jinv, invdet, Minv_ref, mat, Btab, D0, D1):
+    def __init__(self, nb: int, nk: int, n: int, S0, S1, Jinv, invdet, Minv_ref, mat, Btab, chain):
         super().__init__(nb, nk, n, S0, S1, Jinv, invdet, Minv_ref, mat, Btab)
-        _check("ADER", [(D0, np.float64, (nb, nb)), (D1, np.float64, (nb, nb))])
-        self._fn = _function(nb, nk, "ader_corrector", [_P, _P, _P, _N] + [_P] * 9 + [ctypes.c_double, _N])
-        self._arrays += (D0, D1)
+        _check("ADER", [(chain, np.float64, (_chain_size(nb, nk),))])
+        self._fn = _function(nb, nk, "ader_corrector", [_P, _P, _P, _N] + [_P] * 8 + [ctypes.c_double, _N])
+        self._arrays += (chain,)
         self._const = tuple(a.ctypes.data for a in self._arrays)
 
     def __call__(self, x, I, R, dt, order):
@@ -187,15 +195,15 @@ class TaylorKernel:
 
     MAX_TIMES = 4  # (MAXT in volume.c)
 
-    def __init__(self, nb: int, nk: int, ncells: int, Jinv, mat, Btab, D0, D1):
-        self._fn = _function(nb, nk, "taylor_values", [_P, _N, _P, _N, _P, _P, _P, _P, _P, _P, _P, _N, _N])
+    def __init__(self, nb: int, nk: int, ncells: int, Jinv, mat, Btab, chain):
+        self._fn = _function(nb, nk, "taylor_values", [_P, _N, _P, _N, _P, _P, _P, _P, _P, _P, _N, _N])
         _check("Taylor", [(Jinv, np.float64, None), (mat, np.int32, None), (Btab, np.float64, None),
-                          (D0, np.float64, (nb, nb)), (D1, np.float64, (nb, nb))])
+                          (chain, np.float64, (_chain_size(nb, nk),))])
         ncells = int(ncells)
         if Jinv.shape[0] < ncells or mat.shape[0] < ncells or Btab.shape[1:] != (11,) \
                 or (ncells and int(mat[:ncells].max()) >= Btab.shape[0]):
             raise NativeError("the C Taylor kernel's cell data do not cover the local cells")
-        self._arrays = (Jinv, mat, Btab, D0, D1)  # (kept alive: the pointers below)
+        self._arrays = (Jinv, mat, Btab, chain)  # (kept alive: the pointers below)
         self._ncells, self._size = ncells, ncells * nb * 5
         self._const = tuple(a.ctypes.data for a in self._arrays)
 
@@ -207,9 +215,8 @@ class TaylorKernel:
             raise NativeError(f"the C Taylor kernel takes at most {self.MAX_TIMES} times; got {taus.size}")
         if cells.size and (int(cells.max()) >= self._ncells or int(cells.min()) < 0):
             raise NativeError("the C Taylor kernel got a cell outside the local cells")
-        self._fn(Q.ctypes.data, X.size, X.ctypes.data, cells.size, cells.ctypes.data, self._const[0],
-                 self._const[1], self._const[2], self._const[3], self._const[4], taus.ctypes.data, taus.size,
-                 int(order))
+        self._fn(Q.ctypes.data, X.size, X.ctypes.data, cells.size, cells.ctypes.data, *self._const,
+                 taus.ctypes.data, taus.size, int(order))
 
 
 def _check_values(out, X, size, name):

@@ -259,85 +259,142 @@ double facet_dissipation(const double *restrict X, long nfacets, const long *res
 }
 #endif
 
+/* The strong-form volume terms r of reference derivatives (g0, g1) on n rows: the inverse
+ * Jacobian's combinations, field by field (row iv = 0 for every row where the rows are equal). */
+static inline void strong_terms(double r[][5][W], double g0[][5][W], double g1[][5][W], int n, int same,
+                                const double *j00, const double *j01, const double *j10, const double *j11)
+{
+    for (int i = 0; i < n; i++) {
+        const int iv = same ? 0 : i;
+        for (int l = 0; l < W; l++) {
+            r[i][0][l] = j00[l] * g0[iv][2][l] + j10[l] * g1[iv][2][l] + j01[l] * g0[iv][4][l]
+                         + j11[l] * g1[iv][4][l];
+            r[i][1][l] = j00[l] * g0[iv][4][l] + j10[l] * g1[iv][4][l] + j01[l] * g0[iv][3][l]
+                         + j11[l] * g1[iv][3][l];
+            r[i][2][l] = j00[l] * g0[iv][0][l] + j10[l] * g1[iv][0][l];
+            r[i][3][l] = j01[l] * g0[iv][1][l] + j11[l] * g1[iv][1][l];
+            r[i][4][l] = j01[l] * g0[iv][0][l] + j11[l] * g1[iv][0][l] + j00[l] * g0[iv][1][l]
+                         + j10[l] * g1[iv][1][l];
+        }
+    }
+}
+
+/* w = B^-1 t of one row, lane l (B^-1 = diag(1/rho, 1/rho) + the 3x3 stiffness block). */
+#define BINV(wv, t, Bl, l)                                                                           \
+    const double wv[5] = {Bl[0][l] * t[0][l], Bl[1][l] * t[1][l],                                    \
+                          Bl[2][l] * t[2][l] + Bl[3][l] * t[3][l] + Bl[4][l] * t[4][l],              \
+                          Bl[5][l] * t[2][l] + Bl[6][l] * t[3][l] + Bl[7][l] * t[4][l],              \
+                          Bl[8][l] * t[2][l] + Bl[9][l] * t[3][l] + Bl[10][l] * t[4][l]}
+
+/* dim P_k */
+#define DIM(k) (((k) + 1) * ((k) + 2) / 2)
+/* the degree p (NK = p + 1 nodes per facet) */
+#define DEG (NK - 1)
+
+/* One link of the predictor's chain (hydrofrac/matfree.py, taylor_chain): the reference
+ * derivatives g_r (nout rows) of the values r (nin rows) with the link's matrices at *ch; moves
+ * *ch past the link and returns its interpolation matrix at the nodes (NB x nout). */
+static inline const double *chain_derivative(double g0[][5][W], double g1[][5][W], const double **ch,
+                                             double r[][5][W], int nin, int nout)
+{
+    const double *A0 = *ch, *A1 = *ch + nout * nin, *V = *ch + 2 * nout * nin;
+    *ch = V + NB * nout;
+    for (int i = 0; i < nout; i++)
+        for (int k = 0; k < 5; k++) {
+            double s0[W] = {0}, s1[W] = {0};
+            for (int j = 0; j < nin; j++) {
+                const double a = A0[i * nin + j], b = A1[i * nin + j];
+                for (int l = 0; l < W; l++) {
+                    s0[l] += a * r[j][k][l];
+                    s1[l] += b * r[j][k][l];
+                }
+            }
+            for (int l = 0; l < W; l++) {
+                g0[i][k][l] = s0[l];
+                g1[i][k][l] = s1[l];
+            }
+        }
+    return V;
+}
+
 /* ADER's corrector and next predictor, in blocks of W cells: what the numba kernel ader_corrector
  * in hydrofrac/matfree.py computes for a cell-contiguous space.  Per cell: x += M_c^{-1} (R[c] +
  * volume terms of I) (R[c] cleared), then I = sum_{k=0..order} dt^(k+1)/(k+1)! D^k x, D the
- * cell-local strong-form operator with the nodal derivative matrices D_r = Minv_ref S_r. */
+ * cell-local strong-form operator.
+ *
+ * The predictor works in the degrees its terms have (hydrofrac/matfree.py, taylor_chain): D^m x
+ * lies in P_{p-m}, so it is held by its values on the (p-m)-lattice, n_{p-m} rows instead of
+ * the NB nodes, and each term is interpolated at the nodes as it is added to I.  The numba kernel
+ * takes D^m x at the nodes with D_r = Minv_ref S_r; the two agree to round-off.  At p = 3 the
+ * predictor's multiply-adds fall from 3 x 1,230 to about 1,500 a cell (docs/benchmarks.md, "ADER's
+ * predictor in the degrees it has"). */
 void ader_corrector(double *restrict x, double *restrict I, double *restrict R, long ncells,
                     const double *restrict S0, const double *restrict S1, const double *restrict Jinv,
                     const double *restrict invdet, const double *restrict Minv, const int *restrict mat,
-                    const double *restrict Btab, const double *restrict D0, const double *restrict D1, double dt,
-                    long order)
+                    const double *restrict Btab, const double *restrict chain, double dt, long order)
 {
+    const long steps = order < DEG ? order : DEG; /* (D^m = 0 on P_p for m > p) */
     for (long c0 = 0; c0 < ncells; c0 += W) {
         const long w = ncells - c0 < W ? ncells - c0 : W;
-        double u[NB][5][W], g0[ROWS][5][W], g1[ROWS][5][W], r[NB][5][W], acc[NB][5][W], jac[5][W], Bl[11][W];
+        double u[NB][5][W], g0[NB][5][W], g1[NB][5][W], r[NB][5][W], acc[NB][5][W], jac[5][W], Bl[11][W];
         load_block(u, jac, I, Jinv, invdet, c0, w);
         const double *j00 = jac[0], *j01 = jac[1], *j10 = jac[2], *j11 = jac[3], *e = jac[4];
         for (long l = 0; l < W; l++) {
             const long c = c0 + (l < w ? l : 0);
             for (int q = 0; q < 11; q++) Bl[q][l] = Btab[11 * mat[c] + q];
         }
-        double coef = dt;
-        for (long m = 0; m <= order; m++) {
-            derivatives(g0, g1, m == 0 ? S0 : D0, m == 0 ? S1 : D1, u);
-            /* r = the strong-form volume terms of u (row 0 copied where the rows are equal) */
-            for (int i = 0; i < NB; i++) {
-                const int iv = ROWS == NB ? i : 0;
-                for (int l = 0; l < W; l++) {
-                    r[i][0][l] = j00[l] * g0[iv][2][l] + j10[l] * g1[iv][2][l] + j01[l] * g0[iv][4][l]
-                                 + j11[l] * g1[iv][4][l];
-                    r[i][1][l] = j00[l] * g0[iv][4][l] + j10[l] * g1[iv][4][l] + j01[l] * g0[iv][3][l]
-                                 + j11[l] * g1[iv][3][l];
-                    r[i][2][l] = j00[l] * g0[iv][0][l] + j10[l] * g1[iv][0][l];
-                    r[i][3][l] = j01[l] * g0[iv][1][l] + j11[l] * g1[iv][1][l];
-                    r[i][4][l] = j01[l] * g0[iv][0][l] + j11[l] * g1[iv][0][l] + j00[l] * g0[iv][1][l]
-                                 + j10[l] * g1[iv][1][l];
+        /* the corrector: x += B^-1 M_c^-1 (R[c] + volume terms of I) */
+        derivatives(g0, g1, S0, S1, u);
+        strong_terms(r, g0, g1, NB, ROWS == 1, j00, j01, j10, j11);
+        for (int i = 0; i < NB; i++)
+            for (long l = 0; l < W; l++) {
+                const long c = c0 + (l < w ? l : 0);
+                for (int k = 0; k < 5; k++) r[i][k][l] += e[l] * R[5 * (NB * c + i) + k];
+            }
+        for (long m2 = 5 * NB * c0; m2 < 5 * NB * (c0 + w); m2++) R[m2] = 0.0;
+        for (int a = 0; a < NB; a++)
+            for (int k = 0; k < 5; k++) {
+                double t[W] = {0};
+                for (int b = 0; b < NB; b++) {
+                    const double mi = Minv[a * NB + b];
+                    for (int l = 0; l < W; l++) t[l] += mi * r[b][k][l];
+                }
+                for (int l = 0; l < W; l++) u[a][k][l] = t[l];
+            }
+        for (int a = 0; a < NB; a++) /* the new x; the predictor starts from it: I = dt x + ... */
+            for (long l = 0; l < W; l++) {
+                BINV(wv, u[a], Bl, l);
+                const long c = c0 + (l < w ? l : 0);
+                double *xc = x + 5 * (NB * c + a);
+                for (int k = 0; k < 5; k++) {
+                    const double v = xc[k] + wv[k];
+                    if (l < w) xc[k] = v;
+                    r[a][k][l] = v;
+                    acc[a][k][l] = dt * v;
                 }
             }
-            double (*src)[5][W] = r;
-            if (m == 0) { /* M_c^-1 (R[c] + volume terms): first Minv_ref, into u */
-                for (int i = 0; i < NB; i++)
-                    for (long l = 0; l < W; l++) {
-                        const long c = c0 + (l < w ? l : 0);
-                        for (int k = 0; k < 5; k++) r[i][k][l] += e[l] * R[5 * (NB * c + i) + k];
-                    }
-                for (long m2 = 5 * NB * c0; m2 < 5 * NB * (c0 + w); m2++) R[m2] = 0.0;
-                for (int a = 0; a < NB; a++)
-                    for (int k = 0; k < 5; k++) {
-                        double t[W] = {0};
-                        for (int b = 0; b < NB; b++) {
-                            const double mi = Minv[a * NB + b];
-                            for (int l = 0; l < W; l++) t[l] += mi * r[b][k][l];
-                        }
-                        for (int l = 0; l < W; l++) u[a][k][l] = t[l];
-                    }
-                src = u;
-            }
-            if (m > 0) coef *= dt / (double)(m + 1);
-            for (int a = 0; a < NB; a++) /* w = B^-1 src, node by node; then the update */
+        /* the Taylor terms dt^(m+1)/(m+1)! D^m x, D^m x on the (p-m)-lattice in the rows of r */
+        const double *ch = chain;
+        double coef = dt;
+        for (int m = 1; m <= DEG; m++) {
+            if (m > steps) break;
+            const int nin = DIM(DEG - m + 1), nout = DIM(DEG - m);
+            const double *V = chain_derivative(g0, g1, &ch, r, nin, nout);
+            strong_terms(u, g0, g1, nout, 0, j00, j01, j10, j11);
+            coef *= dt / (double)(m + 1);
+            for (int i = 0; i < nout; i++)
                 for (long l = 0; l < W; l++) {
-                    const double t0 = src[a][0][l], t1 = src[a][1][l], t2 = src[a][2][l], t3 = src[a][3][l],
-                                 t4 = src[a][4][l];
-                    const double wv[5] = {Bl[0][l] * t0, Bl[1][l] * t1,
-                                          Bl[2][l] * t2 + Bl[3][l] * t3 + Bl[4][l] * t4,
-                                          Bl[5][l] * t2 + Bl[6][l] * t3 + Bl[7][l] * t4,
-                                          Bl[8][l] * t2 + Bl[9][l] * t3 + Bl[10][l] * t4};
-                    if (m == 0) { /* the corrector: x += w; the predictor starts from the new x */
-                        const long c = c0 + (l < w ? l : 0);
-                        double *xc = x + 5 * (NB * c + a);
-                        for (int k = 0; k < 5; k++) {
-                            const double v = xc[k] + wv[k];
-                            if (l < w) xc[k] = v;
-                            u[a][k][l] = v;
-                            acc[a][k][l] = dt * v;
-                        }
-                    } else { /* the Taylor term dt^(m+1)/(m+1)! D^m x */
-                        for (int k = 0; k < 5; k++) {
-                            u[a][k][l] = wv[k];
-                            acc[a][k][l] += coef * wv[k];
-                        }
+                    BINV(wv, u[i], Bl, l);
+                    for (int k = 0; k < 5; k++) r[i][k][l] = wv[k];
+                }
+            for (int a = 0; a < NB; a++) /* I += the term, interpolated at the nodes */
+                for (int k = 0; k < 5; k++) {
+                    double t[W] = {0};
+                    for (int i = 0; i < nout; i++) {
+                        const double v = V[a * nout + i];
+                        for (int l = 0; l < W; l++) t[l] += v * r[i][k][l];
                     }
+                    for (int l = 0; l < W; l++) acc[a][k][l] += coef * t[l];
                 }
         }
         for (long l = 0; l < w; l++)
@@ -355,53 +412,51 @@ void ader_corrector(double *restrict x, double *restrict I, double *restrict R, 
 #define MAXT 4
 void taylor_values(double *restrict Q, long stride, const double *restrict X, long ncells,
                    const long *restrict cells, const double *restrict Jinv, const int *restrict mat,
-                   const double *restrict Btab, const double *restrict D0, const double *restrict D1,
-                   const double *restrict taus, long ntimes, long order)
+                   const double *restrict Btab, const double *restrict chain, const double *restrict taus,
+                   long ntimes, long order)
 {
+    const long steps = order < DEG ? order : DEG;
     for (long c0 = 0; c0 < ncells; c0 += W) {
         const long w = ncells - c0 < W ? ncells - c0 : W;
-        double u[NB][5][W], g0[ROWS][5][W], g1[ROWS][5][W], q[MAXT][NB][5][W], jac[4][W], Bl[11][W];
+        double u[NB][5][W], r[NB][5][W], g0[NB][5][W], g1[NB][5][W], q[MAXT][NB][5][W], jac[4][W], Bl[11][W];
         long cl[W];
         for (long l = 0; l < W; l++) {
             const long c = cells[c0 + (l < w ? l : 0)];
             cl[l] = c;
             for (int j = 0; j < NB; j++)
-                for (int k = 0; k < 5; k++) u[j][k][l] = X[5 * (NB * c + j) + k];
+                for (int k = 0; k < 5; k++) r[j][k][l] = X[5 * (NB * c + j) + k];
             for (int t = 0; t < 4; t++) jac[t][l] = Jinv[4 * c + t];
             for (int t = 0; t < 11; t++) Bl[t][l] = Btab[11 * mat[c] + t];
         }
         for (long i = 0; i < ntimes; i++)
             for (int j = 0; j < NB; j++)
                 for (int k = 0; k < 5; k++)
-                    for (long l = 0; l < W; l++) q[i][j][k][l] = u[j][k][l];
+                    for (long l = 0; l < W; l++) q[i][j][k][l] = r[j][k][l];
         const double *j00 = jac[0], *j01 = jac[1], *j10 = jac[2], *j11 = jac[3];
         double coef[MAXT];
         for (long i = 0; i < ntimes; i++) coef[i] = 1.0;
-        for (long m = 1; m <= order; m++) {
-            derivatives(g0, g1, D0, D1, u);
-            for (long i = 0; i < ntimes; i++) coef[i] *= taus[i] / (double)m;
-            for (int a = 0; a < NB; a++) {
-                const int iv = ROWS == NB ? a : 0;
-                for (int l = 0; l < W; l++) {
-                    const double t0 = j00[l] * g0[iv][2][l] + j10[l] * g1[iv][2][l] + j01[l] * g0[iv][4][l]
-                                      + j11[l] * g1[iv][4][l];
-                    const double t1 = j00[l] * g0[iv][4][l] + j10[l] * g1[iv][4][l] + j01[l] * g0[iv][3][l]
-                                      + j11[l] * g1[iv][3][l];
-                    const double t2 = j00[l] * g0[iv][0][l] + j10[l] * g1[iv][0][l];
-                    const double t3 = j01[l] * g0[iv][1][l] + j11[l] * g1[iv][1][l];
-                    const double t4 = j01[l] * g0[iv][0][l] + j11[l] * g1[iv][0][l] + j00[l] * g0[iv][1][l]
-                                      + j10[l] * g1[iv][1][l];
-                    u[a][0][l] = Bl[0][l] * t0;
-                    u[a][1][l] = Bl[1][l] * t1;
-                    u[a][2][l] = Bl[2][l] * t2 + Bl[3][l] * t3 + Bl[4][l] * t4;
-                    u[a][3][l] = Bl[5][l] * t2 + Bl[6][l] * t3 + Bl[7][l] * t4;
-                    u[a][4][l] = Bl[8][l] * t2 + Bl[9][l] * t3 + Bl[10][l] * t4;
+        const double *ch = chain;
+        for (int m = 1; m <= DEG; m++) {
+            if (m > steps) break;
+            const int nin = DIM(DEG - m + 1), nout = DIM(DEG - m);
+            const double *V = chain_derivative(g0, g1, &ch, r, nin, nout);
+            strong_terms(u, g0, g1, nout, 0, j00, j01, j10, j11);
+            for (int i = 0; i < nout; i++)
+                for (long l = 0; l < W; l++) {
+                    BINV(wv, u[i], Bl, l);
+                    for (int k = 0; k < 5; k++) r[i][k][l] = wv[k];
                 }
-            }
-            for (long i = 0; i < ntimes; i++)
-                for (int a = 0; a < NB; a++)
-                    for (int k = 0; k < 5; k++)
-                        for (long l = 0; l < W; l++) q[i][a][k][l] += coef[i] * u[a][k][l];
+            for (long i = 0; i < ntimes; i++) coef[i] *= taus[i] / (double)m;
+            for (int a = 0; a < NB; a++) /* the term at the nodes, into every time's sum */
+                for (int k = 0; k < 5; k++) {
+                    double t[W] = {0};
+                    for (int i = 0; i < nout; i++) {
+                        const double v = V[a * nout + i];
+                        for (int l = 0; l < W; l++) t[l] += v * r[i][k][l];
+                    }
+                    for (long i = 0; i < ntimes; i++)
+                        for (int l = 0; l < W; l++) q[i][a][k][l] += coef[i] * t[l];
+                }
         }
         for (long i = 0; i < ntimes; i++)
             for (long l = 0; l < w; l++)

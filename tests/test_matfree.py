@@ -243,6 +243,31 @@ def test_c_ader_kernel_equals_numba(p, monkeypatch):
     scale = np.abs(out["numba"]).max()
     np.testing.assert_allclose(out["c"], out["numba"], rtol=0, atol=1e-13 * scale)
 
+@pytest.mark.parametrize("p", [1, 2, 3, 4])
+def test_taylor_chain_gives_the_nodal_derivatives_in_the_degrees_they_have(p):
+    """The C predictor's chain (``matfree.taylor_chain``): each link's derivatives of a random
+    P_p field, held on the (p - m)-lattice and interpolated at the nodes, equal the nodal
+    derivative matrices D_r = Minv_ref S_r applied m times (any mix of directions), to
+    round-off; a chain that holds D^m x on a lattice a degree too low fails."""
+    solver = Solver(exact.unit_square(2, comm=MPI.COMM_SELF)[0], p, ROCK)
+    mf = solver.matfree
+    D = [mf.Minv_ref @ S for S in (mf.S0, mf.S1)]
+    chain, nb = mf.chain, mf.S0.shape[0]
+    rng = np.random.default_rng(p)
+    dim = [(k + 1) * (k + 2) // 2 for k in range(p + 1)]
+    for dirs in ([0] * p, [1] * p, [m % 2 for m in range(p)]):
+        x = rng.standard_normal(nb)
+        nodal, held, at = x.copy(), x.copy(), 0
+        for m, r in enumerate(dirs, start=1):
+            n_in, n_out = (nb if m == 1 else dim[p - m + 1]), dim[p - m]
+            A = chain[at + r * n_out * n_in: at + (r + 1) * n_out * n_in].reshape(n_out, n_in)
+            V = chain[at + 2 * n_out * n_in: at + 2 * n_out * n_in + nb * n_out].reshape(nb, n_out)
+            at += 2 * n_out * n_in + nb * n_out
+            nodal, held = D[r] @ nodal, A @ held
+            np.testing.assert_allclose(V @ held, nodal, rtol=0, atol=1e-10 * np.abs(x).max() * 4.0 ** m)
+        assert at == chain.size
+
+
 
 def test_kernels_choice_is_checked(monkeypatch, tmp_path):
     """A misspelt HYDROFRAC_KERNELS and a compiler that fails are errors naming the fix, not a
