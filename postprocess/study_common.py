@@ -87,10 +87,10 @@ def timed_run(problem, t_end, monitor=None):
     return comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
 
 
-def wall_at(rows, target, key):
-    """Smallest wall time at which any method of ``rows`` reaches error ``row[key] <= target``,
-    interpolating log(wall) against log(error) between consecutive sizes of a method (by
-    ``row["dofs"]``); inf if none does."""
+def wall_at(rows, target, key, value="wall_s"):
+    """Smallest wall time (or other cost ``row[value]``: flops) at which any method of ``rows``
+    reaches error ``row[key] <= target``, interpolating log(cost) against log(error) between
+    consecutive sizes of a method (by ``row["dofs"]``); inf if none does."""
     best = math.inf
     for m in sorted({r["method"] for r in rows}):
         rs = sorted([r for r in rows if r["method"] == m], key=lambda r: r["dofs"])
@@ -98,10 +98,10 @@ def wall_at(rows, target, key):
             ea, eb = max(a[key], 1e-300), max(b[key], 1e-300)
             if (ea - target) * (eb - target) <= 0 and ea != eb:
                 s = (math.log(target) - math.log(ea)) / (math.log(eb) - math.log(ea))
-                best = min(best, math.exp(math.log(a["wall_s"]) + s * (math.log(b["wall_s"]) - math.log(a["wall_s"]))))
+                best = min(best, math.exp(math.log(a[value]) + s * (math.log(b[value]) - math.log(a[value]))))
         for r in rs:
             if r[key] <= target:
-                best = min(best, r["wall_s"])
+                best = min(best, r[value])
     return best
 
 

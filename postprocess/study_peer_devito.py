@@ -12,8 +12,13 @@ unit square for 0.2 m of travel) on both codes, one core each, float64, the same
   energy norm over the unit square, each field on its own staggered points and times.
 
 Wall times are the time loops only, the minimum of 3 repeats (Devito: its own timer of the
-compiled loop, without the Python call of ``Operator.apply``).  Writes ``peer_devito.csv``
-and ``peer_devito.png`` (``--out``) and prints the frontier ratios at 10 %, 1 % and 0.1 %.
+compiled loop, without the Python call of ``Operator.apply``).  Each run's flops are counted
+too: DG's from its kernels' flop model (``postprocess/roofline.py``), Devito's by Devito itself
+for the operator it generated.  At each target error the study gives the wall-time ratio, the
+ratio of the fewest flops each code needs, and the flop rate (and fraction of one core's
+multiply-add peak, measured in the same run) the DG step would need for DG/Devito = 30.
+Writes ``peer_devito.csv``, ``peer_devito_ratios.csv`` and ``peer_devito.png`` (``--out``)
+and prints the frontier ratios at 10 %, 1 % and 0.1 %.
 Devito is optional: ``make devito-env`` installs it into ``.venv-devito``
 (``--devito-python`` or ``HYDROFRAC_DEVITO_PYTHON`` point elsewhere); without it only the DG
 half runs, and the study says so.
@@ -30,6 +35,7 @@ from pathlib import Path
 
 from mpi4py import MPI
 
+from hydrofrac.postprocess.roofline import peak_flops
 from hydrofrac.postprocess.rundata import write_csv
 from hydrofrac.postprocess.study_common import log_axes, save_figure, study_parser, wall_at
 from hydrofrac.postprocess.study_work_precision import DIRECTION, MAT, TRAVEL, WIDTH, run_dg
@@ -44,6 +50,7 @@ DEVITO = {2: (16, 32, 64, 128, 256), 4: (16, 32, 64, 128), 8: (16, 32, 64)}
 QUICK_DG = {1: (8, 16), 3: (4, 8)}
 QUICK_DEVITO = {2: (16, 32), 4: (16, 32)}
 TARGETS = (0.1, 0.01, 0.001)
+GOAL = 30.0  #: the DG/Devito ratio asked for (docs/studies/peer_devito.md)
 
 
 def dg_rows(sizes, repeats=3, scheme="rk4"):
@@ -82,24 +89,38 @@ def chart(rows, png):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(7, 5))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
     for m in sorted({r["method"] for r in rows}):
         rs = sorted([r for r in rows if r["method"] == m], key=lambda r: r["dofs"])
-        ax.loglog([r["wall_s"] for r in rs], [r["rel_error"] for r in rs], "o-" if "DG" in m else "s--", label=m)
-    ax.set_xlabel("wall time of the time loop [s] (one core, min of 3)")
-    ax.set_ylabel("relative energy-norm error")
-    ax.set_title("plane P wave: DG (this code) against Devito's staggered grid")
-    log_axes(ax)
+        style = "o-" if "DG" in m else "s--"
+        for ax, key in zip(axes, ("wall_s", "flops")):
+            ax.loglog([r[key] for r in rs], [r["rel_error"] for r in rs], style, label=m)
+    axes[0].set_xlabel("wall time of the time loop [s] (one core, min of 3)")
+    axes[1].set_xlabel("flops of the run (DG: its kernels' model; Devito: its own count)")
+    for ax in axes:
+        ax.set_ylabel("relative energy-norm error")
+    axes[0].set_title("plane P wave: DG (this code) against Devito's staggered grid")
+    axes[1].set_title("the same runs by the work they do")
+    log_axes(*axes)
     save_figure(fig, png)
 
 
-def ratios(rows):
+def ratios(rows, peak):
+    """At each target error: the wall times and fewest flops of each code's frontier, their
+    ratios, Devito's flop rate there, and the flop rate (and fraction of the multiply-add peak
+    ``peak`` [flop/s]) that DG's fewest-flop frontier would need for DG/Devito = GOAL."""
     dg = [r for r in rows if r["family"] == "DG"]
     dv = [r for r in rows if r["family"] == "Devito"]
     out = []
     for e in TARGETS:
         a, b = wall_at(dg, e, "rel_error"), wall_at(dv, e, "rel_error")
-        out.append({"error": e, "dg_wall_s": a, "devito_wall_s": b, "ratio": a / b if b else float("nan")})
+        fa, fb = wall_at(dg, e, "rel_error", "flops"), wall_at(dv, e, "rel_error", "flops")
+        need = fa / (GOAL * b) if b else float("nan")
+        out.append({"error": e, "dg_wall_s": a, "devito_wall_s": b, "ratio": a / b if b else float("nan"),
+                    "dg_flops": fa, "devito_flops": fb, "flop_ratio": fa / fb if fb else float("nan"),
+                    "devito_gflops": fb / b / 1e9 if b else float("nan"), "dg_gflops_for_goal": need / 1e9,
+                    "dg_fraction_of_peak_for_goal": need / peak, "peak_gflops": peak / 1e9,
+                    "ratio_at_peak": fa / peak / b if b else float("nan")})
     return out
 
 
@@ -123,9 +144,17 @@ def main(argv=None):
         print(f"[study] {r['method']:10s} N {r['N']:4d} unknowns {r['dofs']:8d} steps {r['steps']:5d} "
               f"wall {r['wall_s'] * 1e3:9.3f} ms  error {r['rel_error']:.3e}", flush=True)
     if py is not None:
-        for r in ratios(rows):
+        peak = peak_flops()
+        table = ratios(rows, peak)
+        write_csv(out / "peer_devito_ratios.csv", table)
+        print(f"[study] one core's multiply-add peak {peak / 1e9:.1f} GFlop/s", flush=True)
+        for r in table:
             print(f"[study] error {r['error']:.0e}: DG {r['dg_wall_s'] * 1e3:.3g} ms, Devito "
-                  f"{r['devito_wall_s'] * 1e3:.3g} ms, DG/Devito {r['ratio']:.3g}", flush=True)
+                  f"{r['devito_wall_s'] * 1e3:.3g} ms, DG/Devito {r['ratio']:.3g}; fewest flops DG "
+                  f"{r['dg_flops']:.3g}, Devito {r['devito_flops']:.3g} ({r['flop_ratio']:.3g}x; Devito at "
+                  f"{r['devito_gflops']:.3g} GFlop/s); DG/Devito = {GOAL:.0f} needs DG at "
+                  f"{r['dg_gflops_for_goal']:.3g} GFlop/s, {r['dg_fraction_of_peak_for_goal']:.2f} of the peak "
+                  f"(at the peak DG/Devito would be {r['ratio_at_peak']:.3g})", flush=True)
     return rows
 
 

@@ -34,6 +34,7 @@ from hydrofrac import ROCK, compat
 from hydrofrac._jit import njit
 from hydrofrac.postprocess.baselines.cg_baseline import CentralDifferenceCG, energy_norm_error, timed_steps
 from hydrofrac.forms import elastodynamics as ef
+from hydrofrac.postprocess.roofline import flops_per_dof_step
 from hydrofrac.postprocess.rundata import write_csv
 from hydrofrac.postprocess.study_common import (cases, log_axes, plane_wave_solver, results_dir, save_figure, say,
                                                 study_parser, wall_at)
@@ -109,8 +110,10 @@ def run_dg(comm, p, N, scheme="rk4"):
     solver, steps = plane_wave_solver(comm, p, N, MAT, state, TRAVEL, point=state_pt, scheme=scheme)
     wall = timed_steps(solver, steps)
     err = dg_error(solver)
+    per = flops_per_dof_step(solver)  # (the kernels' flop model: postprocess/roofline.py)
     return {"method": f"DG P{p}" + ("" if scheme == "rk4" else f" {scheme}"), "family": "DG", "degree": p,
-            "scheme": scheme, "N": N, "dofs": solver.num_dofs, "steps": steps, "wall_s": wall, "rel_error": err}
+            "scheme": scheme, "N": N, "dofs": solver.num_dofs, "steps": steps, "wall_s": wall, "rel_error": err,
+            "flops_per_unknown_step": per, "flops": per * solver.num_dofs * steps}
 
 
 def run_cg(comm, k, N, mass="lumped"):
