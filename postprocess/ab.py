@@ -3,7 +3,11 @@ in one series (docs/benchmarks.md, "A/B against an earlier revision").
 
 This machine's speed drifts by up to 40 % between runs minutes apart, so a speed-up is only
 measured side by side: the two codes take turns, round after round, and each ratio is taken
-within its round.  The earlier revision runs from a git worktree of its own, with its
+within its round.  The order turns every round (the base first in odd rounds, last in even
+ones), and the table gives the geometric mean of the rounds' ratios: with the same code on
+both sides, a series in a fixed order gave 0.93–0.94× in each of three rounds, and one in
+turned order 1.07, 1.02, 1.09 and 0.87× (mean 1.01×).  Differences under about 10 % are not
+resolved by one series (docs/benchmarks.md, "A/B against an earlier revision").  The earlier revision runs from a git worktree of its own, with its
 ``forms/``, ``meshes/`` and ``postprocess/`` linked into its ``hydrofrac/`` as its
 ``pyproject.toml`` maps them, so that it imports none of this tree's code (checked before any
 run: every package must come from the worktree).  Each code runs once with ``--warmup``'s
@@ -26,6 +30,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 import os
 import shlex
 import shutil
@@ -187,6 +192,8 @@ def report(rows, base_label=BASE):
         share = [r["remeshing_share"] for r in rs if r["remeshing_share"] != ""]
         walls = ", ".join("%.2f" % r["wall_time_s"] for r in rs)
         speedups = "—" if lab == base_label else ", ".join("%.2f×" % x for x in ratios)
+        if lab != base_label and len(ratios) > 1:
+            speedups += "; geometric mean %.2f×" % math.exp(sum(math.log(x) for x in ratios) / len(ratios))
         lines.append(f"| {lab} | {walls} | {speedups} | "
                      f"{_span([r['dof_stages_per_s'] for r in rs])} | {_span([r['steps'] for r in rs])} | "
                      f"{_span([r['remeshes'] for r in rs]) if rs[0]['remeshes'] != '' else '—'}"
@@ -266,7 +273,7 @@ def main(argv=None):
     p.add_argument("--base-args", default="", help="the base's own arguments, after --args")
     p.add_argument("--variant", action="append", metavar="LABEL=ARGS",
                    help="a run of this tree with its own arguments after --args (repeatable; default 'head=')")
-    p.add_argument("--rounds", type=int, default=2, help="rounds of the series (each: the base, then every variant)")
+    p.add_argument("--rounds", type=int, default=2, help="rounds of the series (each: the base and every variant, the order turned every round)")
     p.add_argument("--ranks", type=int, default=2)
     p.add_argument("--warmup", default="--quick",
                    help="arguments of each code's warm-up run before the series (default --quick; 'none': no warm-up)")
@@ -307,7 +314,7 @@ def main(argv=None):
                         sys.executable, args.mpirun)
         rows = []
         for k in range(1, args.rounds + 1):
-            for label, code, a in runs:
+            for label, code, a in (runs if k % 2 else runs[::-1]):  # (the order turns: see the docstring)
                 s = run_one(code, args.script, a, out / f"{label}_{k}", args.ranks, sys.executable, args.mpirun)
                 rows.append({"round": k, "label": label, "args": " ".join(a), **row(s)})
                 print(f"[ab] round {k} {label}: {s['wall_time_s']:.2f} s", flush=True)
