@@ -37,15 +37,16 @@ static inline void load_block(double u[NB][5][W], double jac[5][W], const double
     }
 }
 
-/* Reference derivatives g_r = A_r u: A_r = S_r (the volume terms) or D_r (ADER's Taylor terms). */
-static inline void derivatives(double g0[ROWS][5][W], double g1[ROWS][5][W], const double *restrict A0,
-                               const double *restrict A1, double u[NB][5][W])
+/* Reference derivatives g_r = A_r u of nin rows of values into nout rows: the dense products of
+ * every kernel (S_r, and the links of ADER's predictor chain). */
+static inline void products(double g0[][5][W], double g1[][5][W], const double *restrict A0,
+                            const double *restrict A1, double u[][5][W], int nout, int nin)
 {
-    for (int i = 0; i < ROWS; i++)
+    for (int i = 0; i < nout; i++)
         for (int k = 0; k < 5; k++) {
             double s0[W] = {0}, s1[W] = {0};
-            for (int j = 0; j < NB; j++) {
-                const double a = A0[i * NB + j], b = A1[i * NB + j];
+            for (int j = 0; j < nin; j++) {
+                const double a = A0[i * nin + j], b = A1[i * nin + j];
                 for (int l = 0; l < W; l++) {
                     s0[l] += a * u[j][k][l];
                     s1[l] += b * u[j][k][l];
@@ -56,6 +57,13 @@ static inline void derivatives(double g0[ROWS][5][W], double g1[ROWS][5][W], con
                 g1[i][k][l] = s1[l];
             }
         }
+}
+
+/* The volume terms' reference derivatives g_r = S_r u (ROWS rows: one at P1). */
+static inline void derivatives(double g0[ROWS][5][W], double g1[ROWS][5][W], const double *restrict A0,
+                               const double *restrict A1, double u[NB][5][W])
+{
+    products(g0, g1, A0, A1, u, ROWS, NB);
 }
 
 void volume_and_inverse(double *restrict out, double *restrict R, const double *restrict X, long ncells,
@@ -299,21 +307,7 @@ static inline const double *chain_derivative(double g0[][5][W], double g1[][5][W
 {
     const double *A0 = *ch, *A1 = *ch + nout * nin, *V = *ch + 2 * nout * nin;
     *ch = V + NB * nout;
-    for (int i = 0; i < nout; i++)
-        for (int k = 0; k < 5; k++) {
-            double s0[W] = {0}, s1[W] = {0};
-            for (int j = 0; j < nin; j++) {
-                const double a = A0[i * nin + j], b = A1[i * nin + j];
-                for (int l = 0; l < W; l++) {
-                    s0[l] += a * r[j][k][l];
-                    s1[l] += b * r[j][k][l];
-                }
-            }
-            for (int l = 0; l < W; l++) {
-                g0[i][k][l] = s0[l];
-                g1[i][k][l] = s1[l];
-            }
-        }
+    products(g0, g1, A0, A1, r, nout, nin);
     return V;
 }
 
@@ -326,7 +320,7 @@ static inline const double *chain_derivative(double g0[][5][W], double g1[][5][W
  * lies in P_{p-m}, so it is held by its values on the (p-m)-lattice, n_{p-m} rows instead of
  * the NB nodes, and each term is interpolated at the nodes as it is added to I.  The numba kernel
  * takes D^m x at the nodes with D_r = Minv_ref S_r; the two agree to round-off.  At p = 3 the
- * predictor's multiply-adds fall from 3 x 1,230 to about 1,500 a cell (docs/benchmarks.md, "ADER's
+ * predictor's multiply-adds fall from 3 x 1,230 to about 1,640 a cell (docs/benchmarks.md, "ADER's
  * predictor in the degrees it has"). */
 void ader_corrector(double *restrict x, double *restrict I, double *restrict R, long ncells,
                     const double *restrict S0, const double *restrict S1, const double *restrict Jinv,
