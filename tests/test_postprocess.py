@@ -378,3 +378,24 @@ def test_mesh_grading_work_for_the_same_error_follows_a_power_law():
     # between the static means (1e7, 0.55) and (1e8, 0.01), log-linear
     assert means[-1]["work_ratio_loaded_length"] == pytest.approx(10 ** (np.log(0.015 / 0.55) / np.log(0.01 / 0.55)),
                                                                   rel=1e-12)
+
+
+def test_peer_study_ratios_by_time_and_by_work():
+    """``study_peer_devito``'s ratio table: each code's fewest flops at a target error are
+    interpolated in log-log as its wall times are (exact for a power law), the flop ratio is
+    theirs, and the rate DG would need for DG/Devito = 30 is its flops over 30 times Devito's
+    time, as a fraction of the peak.  A Devito run already below the target counts with its
+    own (upper-bound) time and flops."""
+    from hydrofrac.postprocess.study_peer_devito import GOAL, ratios
+    dg = [{"method": "DG P3 ader", "family": "DG", "dofs": d, "rel_error": e, "wall_s": w, "flops": f}
+          for d, e, w, f in ((1600, 1e-1, 1e-3, 1e6), (25600, 1e-3, 1e-1, 1e8))]
+    devito = [{"method": "Devito SO4", "family": "Devito", "dofs": 3125, "rel_error": 5e-3, "wall_s": 2e-5,
+               "flops": 2e5}]
+    peak = 5e10
+    row = next(r for r in ratios(dg + devito, peak) if r["error"] == 0.01)
+    assert row["dg_wall_s"] == pytest.approx(1e-2, rel=1e-12) and row["dg_flops"] == pytest.approx(1e7, rel=1e-12)
+    assert row["ratio"] == pytest.approx(500, rel=1e-12) and row["flop_ratio"] == pytest.approx(50, rel=1e-12)
+    assert row["devito_gflops"] == pytest.approx(10.0, rel=1e-12)
+    assert row["dg_gflops_for_goal"] == pytest.approx(1e7 / (GOAL * 2e-5) / 1e9, rel=1e-12)
+    assert row["dg_fraction_of_peak_for_goal"] == pytest.approx(1e7 / (GOAL * 2e-5) / peak, rel=1e-12)
+    assert row["ratio_at_peak"] == pytest.approx(1e7 / peak / 2e-5, rel=1e-12)
