@@ -17,6 +17,11 @@ def _monomials(p):
     return [(i, j) for i in range(p + 1) for j in range(p + 1 - i)]
 
 
+def dimension(k: int) -> int:
+    """dim P_k on the triangle: the nodes of a degree-k cell."""
+    return (k + 1) * (k + 2) // 2
+
+
 class ReferenceElement:
     """Nodal P_p basis on the reference triangle (0,0), (1,0), (0,1)."""
 

@@ -136,8 +136,7 @@ _P, _N = ctypes.c_void_p, ctypes.c_long
 
 def _chain_size(nb, nk):
     """The length of :func:`hydrofrac.matfree.taylor_chain` at degree nk - 1."""
-    def dim(k):
-        return (k + 1) * (k + 2) // 2
+    from .element import dimension as dim
     p = nk - 1
     return sum(2 * dim(p - m) * dim(p - m + 1) + nb * dim(p - m) for m in range(1, p + 1))
 

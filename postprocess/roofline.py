@@ -12,6 +12,7 @@ import time
 import numpy as np
 from mpi4py import MPI
 
+from hydrofrac.element import dimension as dim
 from hydrofrac.solver import LOW_STORAGE, TABLEAUX, Solver
 
 
@@ -120,8 +121,6 @@ def ader_model(solver: Solver):
     derivative = 2 * (2 * rows * nb * 5) + rows * 16
     cell = derivative + nb * 10 + 2 * nb * nb * 5 + nb * 20 + nb * 5 + nb * 5
     if mf.kernels == "c":
-        def dim(k):
-            return (k + 1) * (k + 2) // 2
         for m in range(1, p + 1):
             n_in, n_out = (nb if m == 1 else dim(p - m + 1)), dim(p - m)
             cell += 2 * (2 * n_out * n_in * 5) + n_out * (16 + 20) + 2 * nb * n_out * 5 + 2 * nb * 5
